@@ -1,0 +1,877 @@
+//! URDF kinematic trees and forward kinematics between any two links.
+//!
+//! Conventions are URDF's:
+//! - Every link has a frame. A joint's `origin` places the joint frame in its parent link's frame;
+//!   at joint value q the child link frame is `parent · origin · motion(q)`, where `motion` rotates
+//!   by q rad about the joint's axis (revolute, continuous) or translates by q m along it
+//!   (prismatic). The axis is expressed in the joint frame, defaults to +x and is normalized here.
+//! - `origin rpy` are fixed-axis roll, pitch, yaw: R = Rz(yaw)·Ry(pitch)·Rx(roll).
+//! - [`Chain::forward`] returns T_base_tip, the tip link frame expressed in the base link frame
+//!   (p_base = T · p_tip).
+//! - A [`Chain`] runs from `base` up to the deepest common ancestor, then down to `tip`. Joints on
+//!   the upward part are traversed *inversely*: they contribute `(origin · motion(q))⁻¹`, with q
+//!   still the joint's own URDF position. Joint values are ordered as the movable joints are
+//!   traversed from base to tip ([`Chain::joint_names`]), so `chain(tip, base)` takes them in
+//!   reverse order and yields the inverse pose.
+
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
+use thiserror::Error;
+
+/// Why a URDF cannot be used, or a chain cannot be built or evaluated. Each variant names the
+/// offending element.
+#[derive(Debug, Error)]
+pub enum KinematicsError {
+    #[error("cannot load URDF file {}", path.display())]
+    File {
+        path: PathBuf,
+        #[source]
+        source: urdf_rs::UrdfError,
+    },
+    #[error("cannot parse URDF")]
+    Parse(#[source] urdf_rs::UrdfError),
+    #[error("URDF has no links")]
+    NoLinks,
+    #[error("link \"{link}\" is defined more than once")]
+    DuplicateLink { link: String },
+    #[error("joint \"{joint}\" is defined more than once")]
+    DuplicateJoint { joint: String },
+    #[error(
+        "joint \"{joint}\" has unsupported type \"{kind}\" (supported: fixed, revolute, continuous, prismatic)"
+    )]
+    UnsupportedJointType { joint: String, kind: String },
+    #[error("joint \"{joint}\" refers to missing link \"{link}\"")]
+    MissingLink { joint: String, link: String },
+    #[error("link \"{link}\" is the child of two joints, \"{first}\" and \"{second}\"")]
+    TwoParents {
+        link: String,
+        first: String,
+        second: String,
+    },
+    #[error("link \"{link}\" is on a cycle of joints")]
+    Cycle { link: String },
+    #[error("URDF has more than one root link: \"{first}\" and \"{second}\"")]
+    MultipleRoots { first: String, second: String },
+    #[error("joint \"{joint}\" has a non-finite origin")]
+    NonFiniteOrigin { joint: String },
+    #[error("joint \"{joint}\" has a zero or non-finite axis {axis:?}")]
+    BadAxis { joint: String, axis: [f64; 3] },
+    #[error("joint \"{joint}\" has invalid position limits: lower {lower}, upper {upper}")]
+    BadLimits {
+        joint: String,
+        lower: f64,
+        upper: f64,
+    },
+    #[error("unknown link \"{link}\"")]
+    UnknownLink { link: String },
+    #[error("expected {expected} joint values, got {got}")]
+    WrongJointCount { expected: usize, got: usize },
+}
+
+type Result<T, E = KinematicsError> = std::result::Result<T, E>;
+
+/// A link: its name and inertial mass (kg, 0 when the URDF gives no `<inertial>`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Link {
+    pub name: String,
+    pub mass: f64,
+}
+
+/// How a movable joint moves its child link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MotionKind {
+    /// Rotation about the axis, within position limits.
+    Revolute,
+    /// Rotation about the axis, unlimited.
+    Continuous,
+    /// Translation along the axis.
+    Prismatic,
+}
+
+/// Limits of a movable joint: position (rad or m; infinite for continuous joints), effort (N·m
+/// or N) and velocity (rad/s or m/s), as the URDF `<limit>` gives them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointLimits {
+    pub lower: f64,
+    pub upper: f64,
+    pub effort: f64,
+    pub velocity: f64,
+}
+
+/// The one degree of freedom of a movable joint.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Motion {
+    pub kind: MotionKind,
+    /// Unit axis in the joint frame.
+    pub axis: Unit<Vector3<f64>>,
+    pub limits: JointLimits,
+}
+
+impl Motion {
+    fn from_urdf(kind: MotionKind, joint: &urdf_rs::Joint) -> Result<Self> {
+        let axis = joint.axis.xyz.0;
+        let unit = Some(Vector3::from(axis))
+            .filter(|a| a.iter().all(|v| v.is_finite()))
+            .and_then(|a| Unit::try_new(a, f64::EPSILON))
+            .ok_or_else(|| KinematicsError::BadAxis {
+                joint: joint.name.clone(),
+                axis,
+            })?;
+        let urdf_rs::JointLimit {
+            mut lower,
+            mut upper,
+            effort,
+            velocity,
+            ..
+        } = joint.limit;
+        if kind == MotionKind::Continuous {
+            // URDF continuous joints have no position limits, whatever `<limit>` says.
+            (lower, upper) = (f64::NEG_INFINITY, f64::INFINITY);
+        } else if lower.is_nan() || upper.is_nan() || lower > upper {
+            return Err(KinematicsError::BadLimits {
+                joint: joint.name.clone(),
+                lower,
+                upper,
+            });
+        }
+        Ok(Motion {
+            kind,
+            axis: unit,
+            limits: JointLimits {
+                lower,
+                upper,
+                effort,
+                velocity,
+            },
+        })
+    }
+
+    /// The joint frame → child link frame transform at joint value `q`.
+    fn transform(&self, q: f64) -> Isometry3<f64> {
+        match self.kind {
+            MotionKind::Revolute | MotionKind::Continuous => Isometry3::from_parts(
+                Translation3::identity(),
+                UnitQuaternion::from_axis_angle(&self.axis, q),
+            ),
+            MotionKind::Prismatic => Translation3::from(self.axis.into_inner() * q).into(),
+        }
+    }
+}
+
+/// A validated joint.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Joint {
+    pub name: String,
+    pub parent: String,
+    pub child: String,
+    /// Joint frame in the parent link frame.
+    pub origin: Isometry3<f64>,
+    /// `None` for a fixed joint (whose URDF axis is ignored, so it may be zero).
+    pub motion: Option<Motion>,
+}
+
+impl Joint {
+    /// The URDF joint type: "fixed", "revolute", "continuous" or "prismatic".
+    pub fn type_name(&self) -> &'static str {
+        match self.motion.as_ref().map(|m| m.kind) {
+            None => "fixed",
+            Some(MotionKind::Revolute) => "revolute",
+            Some(MotionKind::Continuous) => "continuous",
+            Some(MotionKind::Prismatic) => "prismatic",
+        }
+    }
+
+    fn from_urdf(joint: &urdf_rs::Joint) -> Result<Self> {
+        let name = || joint.name.clone();
+        let kind = match joint.joint_type {
+            urdf_rs::JointType::Fixed => None,
+            urdf_rs::JointType::Revolute => Some(MotionKind::Revolute),
+            urdf_rs::JointType::Continuous => Some(MotionKind::Continuous),
+            urdf_rs::JointType::Prismatic => Some(MotionKind::Prismatic),
+            ref other => {
+                return Err(KinematicsError::UnsupportedJointType {
+                    joint: name(),
+                    kind: format!("{other:?}").to_lowercase(),
+                })
+            }
+        };
+        let (xyz, [roll, pitch, yaw]) = (joint.origin.xyz.0, joint.origin.rpy.0);
+        if !xyz.iter().chain(&[roll, pitch, yaw]).all(|v| v.is_finite()) {
+            return Err(KinematicsError::NonFiniteOrigin { joint: name() });
+        }
+        let origin = Isometry3::from_parts(
+            Translation3::from(Vector3::from(xyz)),
+            UnitQuaternion::from_euler_angles(roll, pitch, yaw),
+        );
+        let motion = kind
+            .map(|kind| Motion::from_urdf(kind, joint))
+            .transpose()?;
+        Ok(Joint {
+            name: name(),
+            parent: joint.parent.link.clone(),
+            child: joint.child.link.clone(),
+            origin,
+            motion,
+        })
+    }
+}
+
+/// A validated URDF kinematic tree: unique names, every joint between existing links, every
+/// link but one root the child of exactly one joint, no cycles, supported joint types only.
+#[derive(Debug, Clone)]
+pub struct KinematicTree {
+    name: String,
+    links: Vec<Link>,
+    joints: Vec<Joint>,
+    link_ids: HashMap<String, usize>,
+    /// Per link: (joint whose child it is, that joint's parent link); `None` for the root.
+    parents: Vec<Option<(usize, usize)>>,
+    /// Per link: (joint whose parent it is, that joint's child link), in URDF order.
+    children: Vec<Vec<(usize, usize)>>,
+    root: usize,
+}
+
+impl KinematicTree {
+    /// Reads and validates a URDF file; parse errors name the file.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let robot = urdf_rs::read_file(path).map_err(|source| KinematicsError::File {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_robot(&robot)
+    }
+
+    /// Parses and validates URDF XML text.
+    pub fn from_urdf_str(urdf: &str) -> Result<Self> {
+        Self::from_robot(&urdf_rs::read_from_string(urdf).map_err(KinematicsError::Parse)?)
+    }
+
+    /// Validates a parsed URDF.
+    pub fn from_robot(robot: &urdf_rs::Robot) -> Result<Self> {
+        let mut link_ids = HashMap::with_capacity(robot.links.len());
+        let mut links = Vec::with_capacity(robot.links.len());
+        for link in &robot.links {
+            if link_ids.insert(link.name.clone(), links.len()).is_some() {
+                return Err(KinematicsError::DuplicateLink {
+                    link: link.name.clone(),
+                });
+            }
+            links.push(Link {
+                name: link.name.clone(),
+                mass: link.inertial.mass.value,
+            });
+        }
+
+        let mut joint_names = HashSet::with_capacity(robot.joints.len());
+        let mut joints: Vec<Joint> = Vec::with_capacity(robot.joints.len());
+        let mut parents: Vec<Option<(usize, usize)>> = vec![None; links.len()];
+        let mut children = vec![Vec::new(); links.len()];
+        for urdf_joint in &robot.joints {
+            if !joint_names.insert(urdf_joint.name.as_str()) {
+                return Err(KinematicsError::DuplicateJoint {
+                    joint: urdf_joint.name.clone(),
+                });
+            }
+            let joint = Joint::from_urdf(urdf_joint)?;
+            let id_of = |link: &str| {
+                link_ids
+                    .get(link)
+                    .copied()
+                    .ok_or_else(|| KinematicsError::MissingLink {
+                        joint: joint.name.clone(),
+                        link: link.to_owned(),
+                    })
+            };
+            let (parent, child) = (id_of(&joint.parent)?, id_of(&joint.child)?);
+            if let Some((first, _)) = parents[child] {
+                return Err(KinematicsError::TwoParents {
+                    link: joint.child,
+                    first: joints[first].name.clone(),
+                    second: joint.name,
+                });
+            }
+            parents[child] = Some((joints.len(), parent));
+            children[parent].push((joints.len(), child));
+            joints.push(joint);
+        }
+
+        if let Some(link) = find_cycle(&parents) {
+            return Err(KinematicsError::Cycle {
+                link: links[link].name.clone(),
+            });
+        }
+        // Without cycles every non-empty forest has a root.
+        let mut roots = (0..links.len()).filter(|&l| parents[l].is_none());
+        let root = roots.next().ok_or(KinematicsError::NoLinks)?;
+        if let Some(second) = roots.next() {
+            return Err(KinematicsError::MultipleRoots {
+                first: links[root].name.clone(),
+                second: links[second].name.clone(),
+            });
+        }
+
+        Ok(KinematicTree {
+            name: robot.name.clone(),
+            links,
+            joints,
+            link_ids,
+            parents,
+            children,
+            root,
+        })
+    }
+
+    /// The robot name from the URDF.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The root link: the one link that is no joint's child.
+    pub fn root(&self) -> &Link {
+        &self.links[self.root]
+    }
+
+    /// All links, in URDF order.
+    pub fn links(&self) -> &[Link] {
+        &self.links
+    }
+
+    /// All joints, in URDF order.
+    pub fn joints(&self) -> &[Joint] {
+        &self.joints
+    }
+
+    /// The link named `name`, if any.
+    pub fn link(&self, name: &str) -> Option<&Link> {
+        self.link_ids.get(name).map(|&id| &self.links[id])
+    }
+
+    /// The joint named `name`, if any.
+    pub fn joint(&self, name: &str) -> Option<&Joint> {
+        self.joints.iter().find(|j| j.name == name)
+    }
+
+    /// The joints whose parent is `link`, each with its child link, in URDF order.
+    pub fn children(&self, link: &str) -> Result<impl ExactSizeIterator<Item = (&Joint, &Link)>> {
+        let id = self.link_id(link)?;
+        Ok(self.children[id]
+            .iter()
+            .map(|&(joint, child)| (&self.joints[joint], &self.links[child])))
+    }
+
+    /// Number of movable joints in the whole tree.
+    pub fn dof(&self) -> usize {
+        self.joints.iter().filter(|j| j.motion.is_some()).count()
+    }
+
+    /// Sum of all link masses (kg).
+    pub fn total_mass(&self) -> f64 {
+        self.links.iter().map(|l| l.mass).sum()
+    }
+
+    /// Prepares forward kinematics from `base` to `tip` (any two links; see the module docs).
+    pub fn chain(&self, base: &str, tip: &str) -> Result<Chain> {
+        let mut up = self.joints_to_root(self.link_id(base)?);
+        let mut down = self.joints_to_root(self.link_id(tip)?);
+        // Both lists end with the joints above the common ancestor; drop those.
+        while up.last().is_some() && up.last() == down.last() {
+            up.pop();
+            down.pop();
+        }
+        let mut chain = Chain {
+            start: Isometry3::identity(),
+            joints: Vec::new(),
+        };
+        for &joint in &up {
+            chain.push(&self.joints[joint], Direction::Inverse);
+        }
+        for &joint in down.iter().rev() {
+            chain.push(&self.joints[joint], Direction::Forward);
+        }
+        Ok(chain)
+    }
+
+    fn link_id(&self, link: &str) -> Result<usize> {
+        self.link_ids
+            .get(link)
+            .copied()
+            .ok_or_else(|| KinematicsError::UnknownLink {
+                link: link.to_owned(),
+            })
+    }
+
+    /// The joints from `link` up to the root, nearest first.
+    fn joints_to_root(&self, mut link: usize) -> Vec<usize> {
+        let mut joints = Vec::new();
+        while let Some((joint, parent)) = self.parents[link] {
+            joints.push(joint);
+            link = parent;
+        }
+        joints
+    }
+}
+
+/// A link on a cycle of `parents` (each link has at most one parent), if any.
+fn find_cycle(parents: &[Option<(usize, usize)>]) -> Option<usize> {
+    let mut reaches_root = vec![false; parents.len()];
+    let mut walk = Vec::new();
+    for start in 0..parents.len() {
+        walk.clear();
+        let mut link = start;
+        while !reaches_root[link] {
+            if walk.len() > parents.len() {
+                // More steps than links: we are going round a cycle, and `link` is on it.
+                return Some(link);
+            }
+            walk.push(link);
+            match parents[link] {
+                Some((_, parent)) => link = parent,
+                None => break,
+            }
+        }
+        for &l in &walk {
+            reaches_root[l] = true;
+        }
+    }
+    None
+}
+
+/// Whether a chain traverses a joint from parent to child or, on its upward part, back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Direction {
+    Forward,
+    Inverse,
+}
+
+/// A movable joint of a chain and the constant transform that follows it.
+#[derive(Debug, Clone, PartialEq)]
+struct ChainJoint {
+    name: String,
+    motion: Motion,
+    direction: Direction,
+    after: Isometry3<f64>,
+}
+
+/// Forward kinematics from a base link to a tip link, prepared by [`KinematicTree::chain`].
+///
+/// Fixed joints and origins are folded into constants, so the pose is
+/// `start · M₁(±q₁) · after₁ · … · Mₙ(±qₙ) · afterₙ`, with `-q` for inversely traversed joints:
+/// `(origin · M(q))⁻¹ = M(-q) · origin⁻¹`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chain {
+    start: Isometry3<f64>,
+    joints: Vec<ChainJoint>,
+}
+
+impl Chain {
+    /// Number of movable joints, i.e. of joint values [`Chain::forward`] takes.
+    pub fn dof(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Movable joint names in chain order (as traversed from base to tip).
+    pub fn joint_names(&self) -> impl ExactSizeIterator<Item = &str> {
+        self.joints.iter().map(|j| j.name.as_str())
+    }
+
+    /// Limits of the movable joints in chain order.
+    pub fn limits(&self) -> impl ExactSizeIterator<Item = &JointLimits> {
+        self.joints.iter().map(|j| &j.motion.limits)
+    }
+
+    /// The tip link frame expressed in the base link frame, for joint values `q` in chain order
+    /// (rad or m, each the joint's own URDF position). Does not allocate.
+    pub fn forward(&self, q: &[f64]) -> Result<Isometry3<f64>> {
+        if q.len() != self.joints.len() {
+            return Err(KinematicsError::WrongJointCount {
+                expected: self.joints.len(),
+                got: q.len(),
+            });
+        }
+        Ok(self
+            .joints
+            .iter()
+            .zip(q)
+            .fold(self.start, |pose, (joint, &q)| {
+                let q = match joint.direction {
+                    Direction::Forward => q,
+                    Direction::Inverse => -q,
+                };
+                pose * joint.motion.transform(q) * joint.after
+            }))
+    }
+
+    /// Appends one joint traversal: `origin · M(q)` forward, `M(-q) · origin⁻¹` inverse.
+    fn push(&mut self, joint: &Joint, direction: Direction) {
+        if direction == Direction::Forward {
+            self.append(&joint.origin);
+        }
+        if let Some(motion) = &joint.motion {
+            self.joints.push(ChainJoint {
+                name: joint.name.clone(),
+                motion: motion.clone(),
+                direction,
+                after: Isometry3::identity(),
+            });
+        }
+        if direction == Direction::Inverse {
+            self.append(&joint.origin.inverse());
+        }
+    }
+
+    /// Right-multiplies the constant that currently ends the chain.
+    fn append(&mut self, transform: &Isometry3<f64>) {
+        let last = match self.joints.last_mut() {
+            Some(joint) => &mut joint.after,
+            None => &mut self.start,
+        };
+        *last *= transform;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::f64::consts::FRAC_PI_2;
+
+    fn tree(body: &str) -> Result<KinematicTree> {
+        KinematicTree::from_urdf_str(&format!(r#"<robot name="test">{body}</robot>"#))
+    }
+
+    fn assert_pose_eq(a: &Isometry3<f64>, b: &Isometry3<f64>) {
+        let delta = a.inverse() * b;
+        assert!(
+            delta.translation.vector.norm() < 1e-12 && delta.rotation.angle() < 1e-12,
+            "{a} != {b}"
+        );
+    }
+
+    /// Planar arm in the xy plane: shoulder at the base origin, 0.5 m upper arm, 0.3 m forearm.
+    const PLANAR: &str = r#"
+        <link name="base"/><link name="upper"/><link name="fore"/><link name="hand"/>
+        <joint name="shoulder" type="revolute">
+            <parent link="base"/><child link="upper"/><axis xyz="0 0 1"/>
+            <limit lower="-1" upper="1.5" effort="10" velocity="2"/>
+        </joint>
+        <joint name="elbow" type="continuous">
+            <origin xyz="0.5 0 0"/><parent link="upper"/><child link="fore"/><axis xyz="0 0 2"/>
+            <limit effort="5" velocity="3"/>
+        </joint>
+        <joint name="wrist" type="fixed">
+            <origin xyz="0.3 0 0"/><parent link="fore"/><child link="hand"/><axis xyz="0 0 0"/>
+        </joint>"#;
+
+    #[test]
+    fn planar_arm_matches_hand_computation() {
+        let chain = tree(PLANAR).unwrap().chain("base", "hand").unwrap();
+        assert_eq!(chain.dof(), 2);
+        assert_eq!(
+            chain.joint_names().collect::<Vec<_>>(),
+            ["shoulder", "elbow"]
+        );
+        let (q1, q2) = (0.4_f64, -1.1_f64);
+        let expected = Isometry3::new(
+            Vector3::new(
+                0.5 * q1.cos() + 0.3 * (q1 + q2).cos(),
+                0.5 * q1.sin() + 0.3 * (q1 + q2).sin(),
+                0.0,
+            ),
+            Vector3::z() * (q1 + q2),
+        );
+        assert_pose_eq(&chain.forward(&[q1, q2]).unwrap(), &expected);
+    }
+
+    #[test]
+    fn tree_accessors_and_limits() {
+        let tree = tree(PLANAR).unwrap();
+        assert_eq!(tree.name(), "test");
+        assert_eq!(tree.root().name, "base");
+        assert_eq!(tree.dof(), 2);
+        let children: Vec<_> = tree.children("upper").unwrap().collect();
+        assert_eq!(children.len(), 1);
+        assert_eq!(
+            (&*children[0].0.name, &*children[0].1.name),
+            ("elbow", "fore")
+        );
+        assert_eq!(tree.joint("wrist").unwrap().type_name(), "fixed");
+        let elbow = tree.joint("elbow").unwrap().motion.as_ref().unwrap();
+        assert_eq!(elbow.axis, Vector3::z_axis());
+        let limits: Vec<_> = tree
+            .chain("base", "hand")
+            .unwrap()
+            .limits()
+            .copied()
+            .collect();
+        let shoulder = JointLimits {
+            lower: -1.0,
+            upper: 1.5,
+            effort: 10.0,
+            velocity: 2.0,
+        };
+        let elbow = JointLimits {
+            lower: f64::NEG_INFINITY,
+            upper: f64::INFINITY,
+            effort: 5.0,
+            velocity: 3.0,
+        };
+        assert_eq!(limits, [shoulder, elbow]);
+    }
+
+    #[test]
+    fn rpy_is_fixed_axis_roll_then_pitch_then_yaw() {
+        let tree = tree(
+            r#"<link name="a"/><link name="b"/>
+            <joint name="j" type="fixed">
+                <origin xyz="1 2 3" rpy="0.3 -0.7 1.1"/><parent link="a"/><child link="b"/>
+            </joint>"#,
+        )
+        .unwrap();
+        let rotation = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 1.1)
+            * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -0.7)
+            * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.3);
+        let expected = Isometry3::from_parts(Translation3::new(1.0, 2.0, 3.0), rotation);
+        assert_pose_eq(
+            &tree.chain("a", "b").unwrap().forward(&[]).unwrap(),
+            &expected,
+        );
+    }
+
+    #[test]
+    fn prismatic_moves_along_axis_in_joint_frame() {
+        // The joint frame is rolled by 90°, so its (normalized) y axis is the parent's z axis.
+        let tree = tree(
+            r#"<link name="a"/><link name="b"/>
+            <joint name="slide" type="prismatic">
+                <origin xyz="1 0 0" rpy="1.5707963267948966 0 0"/>
+                <parent link="a"/><child link="b"/><axis xyz="0 2 0"/>
+                <limit lower="0" upper="0.5" effort="100" velocity="0.1"/>
+            </joint>"#,
+        )
+        .unwrap();
+        let pose = tree.chain("a", "b").unwrap().forward(&[0.25]).unwrap();
+        let expected = Isometry3::new(Vector3::new(1.0, 0.0, 0.25), Vector3::x() * FRAC_PI_2);
+        assert_pose_eq(&pose, &expected);
+    }
+
+    #[test]
+    fn axis_defaults_to_x_and_masses_default_to_zero() {
+        let tree = tree(
+            r#"<link name="a">
+                <inertial><mass value="2.5"/>
+                    <inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>
+            </link>
+            <link name="b"/>
+            <joint name="j" type="continuous"><parent link="a"/><child link="b"/></joint>"#,
+        )
+        .unwrap();
+        let motion = tree.joint("j").unwrap().motion.as_ref().unwrap();
+        assert_eq!(motion.axis, Vector3::x_axis());
+        assert_eq!(tree.link("a").unwrap().mass, 2.5);
+        assert_eq!(tree.link("b").unwrap().mass, 0.0);
+        assert_eq!(tree.total_mass(), 2.5);
+    }
+
+    #[test]
+    fn same_base_and_tip_is_identity() {
+        let chain = tree(PLANAR).unwrap().chain("fore", "fore").unwrap();
+        assert_eq!(chain.dof(), 0);
+        assert_eq!(chain.forward(&[]).unwrap(), Isometry3::identity());
+    }
+
+    #[test]
+    fn wrong_joint_count_is_rejected() {
+        let chain = tree(PLANAR).unwrap().chain("base", "hand").unwrap();
+        let err = chain.forward(&[0.1]).unwrap_err();
+        assert!(matches!(
+            err,
+            KinematicsError::WrongJointCount {
+                expected: 2,
+                got: 1
+            }
+        ));
+    }
+
+    #[test]
+    fn unknown_chain_link_is_named() {
+        let err = tree(PLANAR).unwrap().chain("base", "nose").unwrap_err();
+        assert!(matches!(err, KinematicsError::UnknownLink { link } if link == "nose"));
+    }
+
+    #[test]
+    fn missing_link_names_joint_and_link() {
+        let err = tree(
+            r#"<link name="a"/>
+            <joint name="j" type="fixed"><parent link="a"/><child link="ghost"/></joint>"#,
+        )
+        .unwrap_err();
+        assert!(
+            matches!(&err, KinematicsError::MissingLink { joint, link } if joint == "j" && link == "ghost")
+        );
+        assert_eq!(
+            err.to_string(),
+            r#"joint "j" refers to missing link "ghost""#
+        );
+    }
+
+    #[test]
+    fn cycle_is_rejected() {
+        let err = tree(
+            r#"<link name="root"/><link name="a"/><link name="b"/>
+            <joint name="ab" type="fixed"><parent link="a"/><child link="b"/></joint>
+            <joint name="ba" type="fixed"><parent link="b"/><child link="a"/></joint>"#,
+        )
+        .unwrap_err();
+        assert!(matches!(err, KinematicsError::Cycle { link } if link == "a" || link == "b"));
+    }
+
+    #[test]
+    fn two_parents_names_link_and_both_joints() {
+        let err = tree(
+            r#"<link name="a"/><link name="b"/><link name="c"/>
+            <joint name="ac" type="fixed"><parent link="a"/><child link="c"/></joint>
+            <joint name="bc" type="fixed"><parent link="b"/><child link="c"/></joint>"#,
+        )
+        .unwrap_err();
+        assert!(
+            matches!(err, KinematicsError::TwoParents { link, first, second }
+            if link == "c" && first == "ac" && second == "bc")
+        );
+    }
+
+    #[test]
+    fn unsupported_joint_type_is_named() {
+        for kind in ["floating", "planar", "spherical"] {
+            let err = tree(&format!(
+                r#"<link name="a"/><link name="b"/>
+                <joint name="free" type="{kind}"><parent link="a"/><child link="b"/></joint>"#
+            ))
+            .unwrap_err();
+            assert!(
+                matches!(&err, KinematicsError::UnsupportedJointType { joint, kind: k }
+                    if joint == "free" && k == kind),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn duplicate_names_are_rejected() {
+        let err = tree(r#"<link name="a"/><link name="a"/>"#).unwrap_err();
+        assert!(matches!(err, KinematicsError::DuplicateLink { link } if link == "a"));
+        let err = tree(
+            r#"<link name="a"/><link name="b"/><link name="c"/>
+            <joint name="j" type="fixed"><parent link="a"/><child link="b"/></joint>
+            <joint name="j" type="fixed"><parent link="b"/><child link="c"/></joint>"#,
+        )
+        .unwrap_err();
+        assert!(matches!(err, KinematicsError::DuplicateJoint { joint } if joint == "j"));
+    }
+
+    #[test]
+    fn bad_axis_origin_and_limits_are_rejected() {
+        let joint = |attrs: &str| {
+            tree(&format!(
+                r#"<link name="a"/><link name="b"/>
+                <joint name="j" type="revolute"><parent link="a"/><child link="b"/>{attrs}
+                    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>"#
+            ))
+        };
+        for axis in ["0 0 0", "nan 0 1", "inf 0 0"] {
+            let err = joint(&format!(r#"<axis xyz="{axis}"/>"#)).unwrap_err();
+            assert!(matches!(err, KinematicsError::BadAxis { joint, .. } if joint == "j"));
+        }
+        for origin in [r#"xyz="nan 0 0""#, r#"rpy="0 inf 0""#] {
+            let err = joint(&format!("<origin {origin}/>")).unwrap_err();
+            assert!(matches!(err, KinematicsError::NonFiniteOrigin { joint } if joint == "j"));
+        }
+        let err = tree(
+            r#"<link name="a"/><link name="b"/>
+            <joint name="j" type="prismatic"><parent link="a"/><child link="b"/>
+                <limit lower="1" upper="-1" effort="1" velocity="1"/></joint>"#,
+        )
+        .unwrap_err();
+        assert!(matches!(err, KinematicsError::BadLimits { joint, .. } if joint == "j"));
+    }
+
+    #[test]
+    fn root_count_is_checked() {
+        let err = tree(r#"<link name="a"/><link name="b"/>"#).unwrap_err();
+        assert!(
+            matches!(err, KinematicsError::MultipleRoots { first, second }
+            if first == "a" && second == "b")
+        );
+        assert!(matches!(tree("").unwrap_err(), KinematicsError::NoLinks));
+    }
+
+    #[test]
+    fn parse_errors_keep_the_file_path() {
+        let err = KinematicTree::from_file("/nonexistent/robot.urdf").unwrap_err();
+        assert!(err.to_string().contains("/nonexistent/robot.urdf"), "{err}");
+    }
+
+    /// Two branches off `root`: root →a (revolute) →b (prismatic) →c (fixed), root →d
+    /// (continuous) →e (revolute); origins with rotations, axes not unit length.
+    const BRANCHED: &str = r#"
+        <link name="root"/><link name="a"/><link name="b"/><link name="c"/>
+        <link name="d"/><link name="e"/>
+        <joint name="ra" type="revolute">
+            <origin xyz="0.1 -0.2 0.3" rpy="0.4 0.5 -0.6"/><parent link="root"/><child link="a"/>
+            <axis xyz="1 2 3"/><limit lower="-3" upper="3" effort="1" velocity="1"/>
+        </joint>
+        <joint name="ab" type="prismatic">
+            <origin xyz="0 0.5 0" rpy="-1 0.2 0"/><parent link="a"/><child link="b"/>
+            <axis xyz="0 1 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/>
+        </joint>
+        <joint name="bc" type="fixed">
+            <origin xyz="0.2 0 0.1" rpy="0 0 1.2"/><parent link="b"/><child link="c"/>
+        </joint>
+        <joint name="rd" type="continuous">
+            <origin xyz="-0.3 0 0.2" rpy="0.1 0 0"/><parent link="root"/><child link="d"/>
+            <axis xyz="-1 0 1"/>
+        </joint>
+        <joint name="de" type="revolute">
+            <origin xyz="0 0 0.4" rpy="0 1 0"/><parent link="d"/><child link="e"/>
+            <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/>
+        </joint>"#;
+
+    #[test]
+    fn chain_order_goes_up_then_down() {
+        let tree = tree(BRANCHED).unwrap();
+        let names: Vec<_> = tree
+            .chain("c", "e")
+            .unwrap()
+            .joint_names()
+            .map(String::from)
+            .collect();
+        assert_eq!(names, ["ab", "ra", "rd", "de"]);
+        let names: Vec<_> = tree
+            .chain("a", "c")
+            .unwrap()
+            .joint_names()
+            .map(String::from)
+            .collect();
+        assert_eq!(names, ["ab"]);
+    }
+
+    proptest! {
+        #[test]
+        fn reversed_chain_is_inverse_and_matches_root_chains(
+            q in proptest::collection::vec(-3.0..3.0f64, 4)
+        ) {
+            let tree = tree(BRANCHED).unwrap();
+            let c_to_e = tree.chain("c", "e").unwrap().forward(&q).unwrap();
+            let reversed: Vec<f64> = q.iter().rev().copied().collect();
+            let e_to_c = tree.chain("e", "c").unwrap().forward(&reversed).unwrap();
+            assert_pose_eq(&(c_to_e * e_to_c), &Isometry3::identity());
+
+            // Independently through two downward chains from the root: T_ce = T_rc⁻¹ · T_re.
+            let root_c = tree.chain("root", "c").unwrap().forward(&[q[1], q[0]]).unwrap();
+            let root_e = tree.chain("root", "e").unwrap().forward(&q[2..]).unwrap();
+            assert_pose_eq(&c_to_e, &(root_c.inverse() * root_e));
+        }
+    }
+}

@@ -1,0 +1,19 @@
+//! # moonhaul-core
+//!
+//! The math and plain data types every other moonhaul crate shares. Nothing here performs I/O
+//! except parsing the files a caller names (URDFs, policy files), and nothing here allocates on
+//! the per-tick paths the onboard daemon runs at 50 Hz: the stacked metric, forward kinematics
+//! of a prepared chain and the policy MLP forward pass.
+//!
+//! - [`se3`]: the paper's arm pose metric d_SE, the wheel metric, and SE(3) interpolation.
+//! - [`stacked`]: the stacked state Y of N units (one arm pose and one base position each),
+//!   its ℓ∞ metric d and interpolation.
+//! - [`state`]: joint and unit state types and the mission [`state::Phase`].
+//! - [`kinematics`]: URDF kinematic trees, forward kinematics between any two links, limits.
+//! - [`policy`]: the onboard policy runtime (a pure-Rust MLP loaded from safetensors).
+
+pub mod kinematics;
+pub mod policy;
+pub mod se3;
+pub mod stacked;
+pub mod state;

@@ -1,0 +1,75 @@
+//! The one error type of the policy runtime: every way a policy file or an inference call can
+//! be wrong has its own variant, so callers (and tests) can tell them apart without parsing
+//! messages.
+
+use std::path::PathBuf;
+
+/// Why a policy could not be loaded, built, written or evaluated.
+#[derive(Debug, thiserror::Error)]
+pub enum PolicyError {
+    /// Reading or writing the file itself failed.
+    #[error("cannot access policy file {}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The bytes are not a well-formed safetensors container (garbage, truncated, bad header).
+    #[error("not a valid safetensors file")]
+    NotSafetensors(#[source] safetensors::SafeTensorError),
+    /// Serializing the tensors into a safetensors container failed.
+    #[error("cannot serialize policy to safetensors")]
+    Serialize(#[source] safetensors::SafeTensorError),
+    /// A required `__metadata__` key is absent (a safetensors file without `format` is not a
+    /// policy file at all).
+    #[error("metadata key `{key}` is missing")]
+    MissingMetadata { key: String },
+    /// A metadata value is present but unusable.
+    #[error("metadata `{key}` = {value:?} is invalid: {reason}")]
+    BadMetadata {
+        key: String,
+        value: String,
+        reason: String,
+    },
+    /// A tensor the metadata calls for is absent.
+    #[error("tensor `{name}` is missing")]
+    MissingTensor { name: String },
+    /// A tensor the metadata does not call for is present (e.g. a layer beyond `hidden_sizes`,
+    /// or critic weights exported by mistake).
+    #[error("unexpected tensor `{name}` (not part of the format for this metadata)")]
+    UnexpectedTensor { name: String },
+    /// A tensor is not F32.
+    #[error("tensor `{name}` has dtype {dtype}, expected F32")]
+    WrongDtype { name: String, dtype: String },
+    /// A tensor's shape disagrees with the metadata.
+    #[error("tensor `{name}` has shape {found:?}, expected {expected:?}")]
+    ShapeMismatch {
+        name: String,
+        expected: Vec<usize>,
+        found: Vec<usize>,
+    },
+    /// A [`Tensor`](super::Tensor) was built with a data length that does not fit its shape.
+    #[error("tensor data has {len} values, which does not fit shape {shape:?}")]
+    TensorLength { shape: Vec<usize>, len: usize },
+    /// A parameter is NaN or infinite (flat row-major index).
+    #[error("tensor `{name}` has a non-finite value at flat index {index}")]
+    NonFinite { name: String, index: usize },
+    /// An observation normalizer std entry is zero or negative.
+    #[error("obs_norm.std[{index}] is not positive")]
+    NonPositiveStd { index: usize },
+    /// [`Policy::act`](super::Policy::act) got an observation of the wrong length.
+    #[error("observation has {found} values, policy expects {expected}")]
+    ObsLength { expected: usize, found: usize },
+    /// [`Policy::act`](super::Policy::act) got an action buffer of the wrong length.
+    #[error("action buffer has {found} values, policy produces {expected}")]
+    ActionLength { expected: usize, found: usize },
+    /// The scratch was made for a smaller policy.
+    #[error("scratch holds {found} values per buffer, policy needs {needed}")]
+    ScratchTooSmall { needed: usize, found: usize },
+    /// An observation entry is NaN or infinite (or overflows f32).
+    #[error("observation[{index}] is not finite")]
+    NonFiniteObs { index: usize },
+    /// The network produced a NaN or infinite action entry.
+    #[error("action[{index}] came out non-finite")]
+    NonFiniteAction { index: usize },
+}

@@ -1,0 +1,246 @@
+//! The `__metadata__` string map of a policy file, parsed into [`PolicyMetadata`].
+
+use std::collections::{BTreeMap, HashMap};
+
+use safetensors::SafeTensors;
+
+use super::PolicyError;
+use crate::state::Phase;
+
+/// Value of the `format` key: marks a safetensors file as a moonhaul policy.
+pub const FORMAT_NAME: &str = "moonhaul-policy";
+/// The format version this build reads and writes (`format_version` key).
+pub const FORMAT_VERSION: u32 = 1;
+
+const KEY_FORMAT: &str = "format";
+const KEY_FORMAT_VERSION: &str = "format_version";
+const KEY_PHASE: &str = "phase";
+const KEY_OBS_DIM: &str = "obs_dim";
+const KEY_ACTION_DIM: &str = "action_dim";
+const KEY_HIDDEN_SIZES: &str = "hidden_sizes";
+const KEY_ACTIVATION: &str = "activation";
+const KEY_OBS_CLIP: &str = "obs_clip";
+/// Keys with a typed meaning; everything else lands in [`PolicyMetadata::extra`].
+const RESERVED_KEYS: [&str; 8] = [
+    KEY_FORMAT,
+    KEY_FORMAT_VERSION,
+    KEY_PHASE,
+    KEY_OBS_DIM,
+    KEY_ACTION_DIM,
+    KEY_HIDDEN_SIZES,
+    KEY_ACTIVATION,
+    KEY_OBS_CLIP,
+];
+
+/// The nonlinearity between hidden layers. Only ELU (alpha = 1, the paper's choice) exists;
+/// the key is in the format so a future activation is a metadata change, not a new format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activation {
+    /// `x` for `x > 0`, `exp(x) - 1` otherwise.
+    Elu,
+}
+
+impl Activation {
+    /// The metadata spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Activation::Elu => "elu",
+        }
+    }
+}
+
+/// Everything a policy file says about itself besides the numbers in its tensors.
+///
+/// Read it alone with [`PolicyMetadata::from_bytes`] (no tensor is decoded or checked), or as
+/// part of a full load with [`Policy::from_bytes`](super::Policy::from_bytes).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolicyMetadata {
+    /// The phase this policy drives; never [`Phase::Idle`].
+    pub phase: Phase,
+    /// Length of the observation vector.
+    pub obs_dim: usize,
+    /// Length of the action vector.
+    pub action_dim: usize,
+    /// Widths of the hidden layers, input side first (empty: a single linear layer).
+    pub hidden_sizes: Vec<usize>,
+    /// Nonlinearity after every hidden layer.
+    pub activation: Activation,
+    /// If set, normalized observations are clamped to `±obs_clip`.
+    pub obs_clip: Option<f32>,
+    /// Free-form keys (`created_by`, `train_run`, `env_steps`, ...), kept verbatim.
+    pub extra: BTreeMap<String, String>,
+}
+
+impl PolicyMetadata {
+    /// Parses and validates the metadata of a policy file's bytes without touching its tensors.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, PolicyError> {
+        let (_, header) = SafeTensors::read_metadata(bytes).map_err(PolicyError::NotSafetensors)?;
+        let empty = HashMap::new();
+        Self::from_map(header.metadata().as_ref().unwrap_or(&empty))
+    }
+
+    /// Layer widths from input to output: `[obs_dim, hidden_sizes..., action_dim]`.
+    pub fn layer_sizes(&self) -> Vec<usize> {
+        let mut sizes = Vec::with_capacity(self.hidden_sizes.len() + 2);
+        sizes.push(self.obs_dim);
+        sizes.extend_from_slice(&self.hidden_sizes);
+        sizes.push(self.action_dim);
+        sizes
+    }
+
+    pub(super) fn from_map(map: &HashMap<String, String>) -> Result<Self, PolicyError> {
+        let get = |key: &str| {
+            map.get(key).ok_or_else(|| PolicyError::MissingMetadata {
+                key: key.to_owned(),
+            })
+        };
+
+        let format = get(KEY_FORMAT)?;
+        if format != FORMAT_NAME {
+            return Err(bad(KEY_FORMAT, format, format!("expected {FORMAT_NAME:?}")));
+        }
+        let version = get(KEY_FORMAT_VERSION)?;
+        if parse_int::<u32>(KEY_FORMAT_VERSION, version)? != FORMAT_VERSION {
+            return Err(bad(
+                KEY_FORMAT_VERSION,
+                version,
+                format!("unsupported version (this build reads {FORMAT_VERSION})"),
+            ));
+        }
+        let phase_str = get(KEY_PHASE)?;
+        let phase = phase_str
+            .parse::<Phase>()
+            .map_err(|e| bad(KEY_PHASE, phase_str, e.to_string()))?;
+        let hidden_str = get(KEY_HIDDEN_SIZES)?;
+        let hidden_sizes = if hidden_str.trim().is_empty() {
+            Vec::new()
+        } else {
+            hidden_str
+                .split(',')
+                .map(|s| {
+                    s.trim()
+                        .parse()
+                        .map_err(|e| bad(KEY_HIDDEN_SIZES, hidden_str, format!("entry {s:?}: {e}")))
+                })
+                .collect::<Result<_, _>>()?
+        };
+        let activation_str = get(KEY_ACTIVATION)?;
+        let activation = match activation_str.as_str() {
+            "elu" => Activation::Elu,
+            _ => {
+                return Err(bad(
+                    KEY_ACTIVATION,
+                    activation_str,
+                    "unsupported activation (expected elu)".into(),
+                ))
+            }
+        };
+        let obs_clip = match map.get(KEY_OBS_CLIP) {
+            None => None,
+            Some(s) => Some(
+                s.trim()
+                    .parse::<f32>()
+                    .map_err(|e| bad(KEY_OBS_CLIP, s, e.to_string()))?,
+            ),
+        };
+        let metadata = Self {
+            phase,
+            obs_dim: parse_int(KEY_OBS_DIM, get(KEY_OBS_DIM)?)?,
+            action_dim: parse_int(KEY_ACTION_DIM, get(KEY_ACTION_DIM)?)?,
+            hidden_sizes,
+            activation,
+            obs_clip,
+            extra: map
+                .iter()
+                .filter(|(k, _)| !RESERVED_KEYS.contains(&k.as_str()))
+                .map(|(k, v)| (k.clone(), v.clone()))
+                .collect(),
+        };
+        metadata.validate()?;
+        Ok(metadata)
+    }
+
+    /// The string map written as `__metadata__`.
+    pub(super) fn to_map(&self) -> HashMap<String, String> {
+        let hidden: Vec<String> = self.hidden_sizes.iter().map(usize::to_string).collect();
+        let mut map: HashMap<String, String> = self.extra.clone().into_iter().collect();
+        map.insert(KEY_FORMAT.into(), FORMAT_NAME.into());
+        map.insert(KEY_FORMAT_VERSION.into(), FORMAT_VERSION.to_string());
+        map.insert(KEY_PHASE.into(), self.phase.name().into());
+        map.insert(KEY_OBS_DIM.into(), self.obs_dim.to_string());
+        map.insert(KEY_ACTION_DIM.into(), self.action_dim.to_string());
+        map.insert(KEY_HIDDEN_SIZES.into(), hidden.join(","));
+        map.insert(KEY_ACTIVATION.into(), self.activation.name().into());
+        if let Some(clip) = self.obs_clip {
+            map.insert(KEY_OBS_CLIP.into(), clip.to_string());
+        }
+        map
+    }
+
+    /// Checks the value constraints the types cannot express. Shared by parsing and by
+    /// [`Policy::new`](super::Policy::new), so a hand-built policy obeys the same rules.
+    pub(super) fn validate(&self) -> Result<(), PolicyError> {
+        if !self.phase.has_policy() {
+            return Err(bad(
+                KEY_PHASE,
+                self.phase.name(),
+                "the idle phase runs no policy".into(),
+            ));
+        }
+        for (key, dim) in [
+            (KEY_OBS_DIM, self.obs_dim),
+            (KEY_ACTION_DIM, self.action_dim),
+        ] {
+            if dim == 0 {
+                return Err(bad(key, "0", "must be positive".into()));
+            }
+        }
+        if self.hidden_sizes.contains(&0) {
+            let joined: Vec<String> = self.hidden_sizes.iter().map(usize::to_string).collect();
+            return Err(bad(
+                KEY_HIDDEN_SIZES,
+                &joined.join(","),
+                "every hidden size must be positive".into(),
+            ));
+        }
+        if let Some(clip) = self.obs_clip {
+            if !(clip.is_finite() && clip > 0.0) {
+                return Err(bad(
+                    KEY_OBS_CLIP,
+                    &clip.to_string(),
+                    "must be a positive finite number".into(),
+                ));
+            }
+        }
+        if let Some((key, value)) = self
+            .extra
+            .iter()
+            .find(|(k, _)| RESERVED_KEYS.contains(&k.as_str()))
+        {
+            return Err(bad(
+                key,
+                value,
+                "reserved key, set through its typed field".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn bad(key: &str, value: &str, reason: String) -> PolicyError {
+    PolicyError::BadMetadata {
+        key: key.to_owned(),
+        value: value.to_owned(),
+        reason,
+    }
+}
+
+fn parse_int<T>(key: &str, value: &str) -> Result<T, PolicyError>
+where
+    T: std::str::FromStr<Err = std::num::ParseIntError>,
+{
+    value
+        .trim()
+        .parse()
+        .map_err(|e: std::num::ParseIntError| bad(key, value, e.to_string()))
+}

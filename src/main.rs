@@ -1,0 +1,43 @@
+//! `moonhaul`: the operator's umbrella CLI. It never links libtorch (training lives in
+//! `moonhaul-train`); everything here runs on the pure-Rust core.
+
+mod policy_cmd;
+mod urdf_cmd;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "moonhaul",
+    version,
+    about = "Cooperative lunar cargo transport: tools and missions"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Inspect URDF robot models: kinematic tree, limits, forward kinematics.
+    #[command(subcommand)]
+    Urdf(urdf_cmd::UrdfCommand),
+    /// Inspect onboard policy files (safetensors).
+    #[command(subcommand)]
+    Policy(policy_cmd::PolicyCommand),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Urdf(cmd) => urdf_cmd::run(cmd),
+        Command::Policy(cmd) => policy_cmd::run(cmd),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! End-to-end tests of `moonhaul urdf check` and `moonhaul urdf fk` on the Panda test arm and on
+//! malformed URDFs.
+
+use std::process::{Command, Output};
+
+const PANDA: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/crates/moonhaul-core/tests/data/panda.urdf"
+);
+const FIXTURE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/crates/moonhaul-core/tests/data/fk_reference.json"
+);
+
+fn moonhaul(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_moonhaul"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn stdout(output: &Output) -> String {
+    assert!(
+        output.status.success(),
+        "stderr: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout.clone()).unwrap()
+}
+
+fn stderr(output: &Output) -> String {
+    assert!(!output.status.success(), "unexpectedly succeeded");
+    String::from_utf8(output.stderr.clone()).unwrap()
+}
+
+fn fk(args: &[&str]) -> Output {
+    let mut all = vec!["urdf", "fk", PANDA, "--base", "panda_link0"];
+    all.extend_from_slice(args);
+    moonhaul(&all)
+}
+
+fn check_urdf_text(body: &str) -> Output {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.urdf");
+    std::fs::write(&path, format!(r#"<robot name="bad">{body}</robot>"#)).unwrap();
+    moonhaul(&["urdf", "check", path.to_str().unwrap()])
+}
+
+#[test]
+fn check_prints_tree_limits_masses_and_dof() {
+    let out = stdout(&moonhaul(&["urdf", "check", PANDA]));
+    assert!(out.contains("panda_link0 (2.900 kg)"), "{out}");
+    assert!(out.contains(
+        "joint panda_joint1: revolute, axis (0, 0, 1), lower -2.9671 rad, upper 2.9671 rad, \
+         effort 87 N·m, velocity 2.175 rad/s"
+    ));
+    assert!(out.contains("joint panda_finger_joint1: prismatic, axis (0, 1, 0), lower 0 m"));
+    assert!(out.contains("joint panda_joint8: fixed"));
+    assert!(
+        out.contains("13 links, total mass 17.960 kg; 12 joints, 9 DOF"),
+        "{out}"
+    );
+}
+
+#[test]
+fn check_rejects_missing_link_and_cycle_naming_the_element() {
+    let err = stderr(&check_urdf_text(
+        r#"<link name="a"/>
+        <joint name="to_ghost" type="fixed"><parent link="a"/><child link="ghost"/></joint>"#,
+    ));
+    assert!(err.contains("bad.urdf"), "{err}");
+    assert!(
+        err.contains(r#"joint "to_ghost" refers to missing link "ghost""#),
+        "{err}"
+    );
+
+    let err = stderr(&check_urdf_text(
+        r#"<link name="root"/><link name="a"/><link name="b"/>
+        <joint name="ab" type="fixed"><parent link="a"/><child link="b"/></joint>
+        <joint name="ba" type="fixed"><parent link="b"/><child link="a"/></joint>"#,
+    ));
+    assert!(err.contains("is on a cycle"), "{err}");
+}
+
+#[test]
+fn check_rejects_unreadable_file_naming_it() {
+    let err = stderr(&moonhaul(&["urdf", "check", "/nonexistent/arm.urdf"]));
+    assert!(err.contains("/nonexistent/arm.urdf"), "{err}");
+}
+
+#[test]
+fn fk_json_matches_reference_fixture() {
+    let fixture: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(FIXTURE).unwrap()).unwrap();
+    let chain = &fixture["chains"][0];
+    assert_eq!(chain["tip"], "panda_grasptarget");
+    let config = chain["configs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| {
+            c["q"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|v| v.as_f64() != Some(0.0))
+        })
+        .unwrap();
+    let q: Vec<String> = config["q"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.to_string())
+        .collect();
+    assert!(
+        q.iter().any(|v| v.starts_with('-')),
+        "want a negative value"
+    );
+
+    let out = stdout(&fk(&[
+        "--tip",
+        "panda_grasptarget",
+        "--q",
+        &q.join(","),
+        "--json",
+    ]));
+    assert_eq!(out.lines().count(), 1, "{out}");
+    let pose: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let values = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let rotation = values(&pose["rotation_xyzw"]);
+    assert!(rotation[3] >= 0.0);
+    for (key, got) in [
+        ("translation", values(&pose["translation"])),
+        ("rotation_xyzw", rotation),
+    ] {
+        for (g, e) in got.iter().zip(values(&config[key])) {
+            assert!((g - e).abs() < 1e-9, "{key}: {got:?} vs {}", config[key]);
+        }
+    }
+}
+
+#[test]
+fn fk_human_output_and_zero_dof_chain() {
+    let out = stdout(&fk(&["--tip", "panda_link1", "--q=-0.5"]));
+    assert!(
+        out.contains("translation (m):     0.000000 0.000000 0.333000"),
+        "{out}"
+    );
+    assert!(
+        out.contains("rpy (rad):           0.000000 0.000000 -0.500000"),
+        "{out}"
+    );
+    // panda_link0 → panda_link0 has no movable joints, so --q may be omitted.
+    let out = stdout(&fk(&["--tip", "panda_link0", "--json"]));
+    assert_eq!(
+        out.trim(),
+        r#"{"translation":[0.0,0.0,0.0],"rotation_xyzw":[0.0,0.0,0.0,1.0]}"#
+    );
+}
+
+#[test]
+fn fk_rejects_wrong_count_and_bad_values() {
+    let err = stderr(&fk(&["--tip", "panda_link3", "--q", "0.1,-0.2"]));
+    assert!(
+        err.contains("[panda_joint1, panda_joint2, panda_joint3]")
+            && err.contains("expected 3 joint values, got 2"),
+        "{err}"
+    );
+    let err = stderr(&fk(&["--tip", "panda_link2", "--q", "0.1,abc"]));
+    assert!(err.contains(r#"--q entry 2 ("abc")"#), "{err}");
+    let err = stderr(&fk(&["--tip", "nose", "--q", "0"]));
+    assert!(err.contains(r#"unknown link "nose""#), "{err}");
+}

@@ -1,0 +1,174 @@
+//! `cargo xtask`: the project's set-up and the README's two commands.
+//!
+//! - `cargo xtask demo`  — the main job (grows with the project).
+//! - `cargo xtask test`  — every test in the workspace.
+//! - `cargo xtask setup` — only the set-up both of them do first.
+//! - `cargo xtask cargo ARGS…` — any cargo command with libtorch configured (clippy, bench, run).
+//!
+//! Set-up means libtorch for `moonhaul-learn`: PyTorch from PyPI (the exact version `tch`
+//! links) in a project-local venv, installed once and reused. torch-sys finds it through
+//! `LIBTORCH_USE_PYTORCH=1` and the venv's `python`; `moonhaul-learn`'s build script embeds its
+//! library directory as an rpath, so nothing needs `LD_LIBRARY_PATH`.
+//!
+//! `MOONHAUL_VENV` overrides the venv location (CI keeps one outside the clone).
+
+use std::env;
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+
+/// The PyTorch release `tch` 0.26 is built against.
+const TORCH_VERSION: &str = "2.13.0";
+
+const USAGE: &str = "usage: cargo xtask <demo|test|setup|cargo ARGS...>
+
+  demo          run the main job: the moonhaul CLI on the bundled 7-DOF arm model and the
+                onboard per-tick benchmark (stacked metric, forward kinematics, policy MLP)
+  test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
+  setup         only install libtorch (PyTorch from PyPI) into the project venv
+  cargo ARGS    run any cargo command with libtorch configured, e.g.
+                `cargo xtask cargo clippy --workspace --all-targets -- -D warnings`";
+
+fn main() -> ExitCode {
+    let args: Vec<String> = env::args().skip(1).collect();
+    let result = match args.first().map(String::as_str) {
+        Some("demo") => demo(),
+        Some("test") => test(&args[1..]),
+        Some("setup") => setup().map(|_| ()),
+        Some("cargo") => setup().and_then(|venv| cargo(&venv, &args[1..])),
+        Some("-h" | "--help" | "help") => {
+            println!("{USAGE}");
+            Ok(())
+        }
+        _ => Err(USAGE.to_owned()),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("xtask: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn workspace_root() -> PathBuf {
+    // xtask/ lives directly under the workspace root.
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+fn venv_dir() -> PathBuf {
+    env::var_os("MOONHAUL_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join(".venv"))
+}
+
+/// Creates the venv and installs PyTorch unless a previous run completed it (a stamp file is
+/// written only after pip succeeded, so an interrupted install is retried).
+fn setup() -> Result<PathBuf, String> {
+    let venv = venv_dir();
+    let python = venv.join("bin").join("python");
+    let stamp = venv.join(format!(".moonhaul-torch-{TORCH_VERSION}"));
+    if stamp.exists() {
+        return Ok(venv);
+    }
+    if !python.exists() {
+        eprintln!("xtask: creating Python venv at {}", venv.display());
+        run(Command::new("python3").arg("-m").arg("venv").arg(&venv)).map_err(|e| {
+            format!("{e}\n(needs python3 with the venv module; on Debian: apt-get install python3-venv)")
+        })?;
+    }
+    eprintln!(
+        "xtask: installing torch=={TORCH_VERSION} from PyPI into {} (once; several GB)",
+        venv.display()
+    );
+    run(Command::new(&python).args([
+        "-m",
+        "pip",
+        "install",
+        "--disable-pip-version-check",
+        "--progress-bar",
+        "off",
+        &format!("torch=={TORCH_VERSION}"),
+    ]))?;
+    std::fs::write(&stamp, TORCH_VERSION)
+        .map_err(|e| format!("cannot write {}: {e}", stamp.display()))?;
+    Ok(venv)
+}
+
+/// A `cargo` command with the environment torch-sys needs to find the venv's libtorch.
+fn cargo_command(venv: &Path) -> Command {
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| OsString::from("cargo"));
+    let mut path = OsString::from(venv.join("bin"));
+    if let Some(old) = env::var_os("PATH") {
+        path.push(":");
+        path.push(old);
+    }
+    let mut command = Command::new(cargo);
+    command
+        .current_dir(workspace_root())
+        .env("LIBTORCH_USE_PYTORCH", "1")
+        .env("VIRTUAL_ENV", venv)
+        .env("PATH", path);
+    command
+}
+
+fn cargo(venv: &Path, args: &[String]) -> Result<(), String> {
+    run(cargo_command(venv).args(args))
+}
+
+fn test(extra: &[String]) -> Result<(), String> {
+    let venv = setup()?;
+    cargo(
+        &venv,
+        &["test".into(), "--workspace".into()]
+            .into_iter()
+            .chain(extra.iter().cloned())
+            .collect::<Vec<_>>(),
+    )
+}
+
+/// The main job. For now: what the project can do end to end without a simulator — check the
+/// bundled 7-DOF arm model, compute its forward kinematics, and time the per-tick onboard math.
+fn demo() -> Result<(), String> {
+    let venv = setup()?;
+    let arm = "crates/moonhaul-core/tests/data/panda.urdf";
+    let moonhaul = |args: &[&str]| {
+        let mut all = vec!["run", "--quiet", "--release", "--package", "moonhaul", "--"];
+        all.extend_from_slice(args);
+        run(cargo_command(&venv).args(all))
+    };
+    moonhaul(&["urdf", "check", arm])?;
+    moonhaul(&[
+        "urdf",
+        "fk",
+        arm,
+        "--base",
+        "panda_link0",
+        "--tip",
+        "panda_grasptarget",
+        "--q",
+        "0.3,-0.5,0.2,-1.2,0.4,0.9,-0.1",
+    ])?;
+    run(cargo_command(&venv).args([
+        "bench",
+        "--quiet",
+        "--package",
+        "moonhaul-core",
+        "--bench",
+        "tick",
+    ]))
+}
+
+fn run(command: &mut Command) -> Result<(), String> {
+    let status = command
+        .status()
+        .map_err(|e| format!("cannot start {:?}: {e}", command.get_program()))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{:?} failed ({status})", command.get_program()))
+    }
+}
