@@ -1,6 +1,7 @@
 //! `moonhaul`: the operator's umbrella CLI. It never links libtorch (training lives in
 //! `moonhaul-train`); everything here runs on the pure-Rust core.
 
+mod can_cmd;
 mod policy_cmd;
 mod urdf_cmd;
 
@@ -25,6 +26,9 @@ enum Command {
     /// Inspect onboard policy files (safetensors).
     #[command(subcommand)]
     Policy(policy_cmd::PolicyCommand),
+    /// CAN bus tools: emulate a unit's CiA 402 drives and record the master's traffic.
+    #[command(subcommand)]
+    Can(can_cmd::CanCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -32,6 +36,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Urdf(cmd) => urdf_cmd::run(cmd),
         Command::Policy(cmd) => policy_cmd::run(cmd),
+        Command::Can(cmd) => can_cmd::run(cmd),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
