@@ -1,0 +1,320 @@
+//! The synchronization clamp (paper, Sec. V-B): issue the largest step toward the policies'
+//! target that keeps every subsystem of the team within its tolerance of the sensed state.
+//!
+//! With S_k = U_{k-1} (last tick's commands) and F_k (this tick's target), for t ∈ [0, 1]:
+//! - T(t, S_k, F_k) interpolates every unit's command in **joint space**: (1 − t)·S + t·F on the
+//!   two wheel velocities and the seven arm joint positions. The policies output absolute joint
+//!   targets, so the paper's increment is Δ(U_{k-1}, a_k) = a_k − U_{k-1} and, ⊕ being
+//!   addition in joint space, F_k = U_{k-1} ⊕ Δ = a_k: the caller passes the policy outputs.
+//! - Admissibility is judged in **task space**. Each unit's commanded base pose is its sensed
+//!   base pose integrated for one control period under the interpolated wheel velocities
+//!   (differential drive); its commanded end-effector pose is that base pose · arm mount ·
+//!   FK(interpolated arm joints). Y_k is the same image of the sensed joints and base pose.
+//!   T(t) ∈ V_k iff d(X(t), Y_k) ≤ 1 with core's stacked metric d.
+//! - t_max = max{t : T(t) ∈ V_k}. t = 1 is tried first (the common case: one evaluation).
+//!   Otherwise d need not be monotone in t (e.g. a wheel velocity reversing sign), so t = j/M
+//!   (M = `search.scan_cells`) is scanned downward and the first admissible point's cell is
+//!   bisected to `search.bisection_tolerance`. The result is always admissible; it is maximal
+//!   unless an admissible stretch narrower than 1/M lies wholly between two inadmissible scan
+//!   points above it, in which case the clamp issues a smaller, still safe, step.
+//! - **Hold** when no t is admissible, or when the caller asks (safety stop σ, Idle, a pending
+//!   phase change): every arm is commanded to its sensed joint positions and every wheel to
+//!   zero velocity. Its task image is exactly Y_k (d = 0), so a hold is always admissible.
+
+use crate::config::{SearchConfig, SyncConfig};
+use crate::message::{StopReason, Transition};
+use crate::model::UnitModel;
+use moonhaul_core::kinematics::KinematicsError;
+use moonhaul_core::stacked::{
+    StackedDistance, StackedError, StackedState, SyncTolerances, UnitPoses,
+};
+use moonhaul_core::state::{UnitCommand, UnitState, WHEEL_JOINTS};
+use nalgebra::{Isometry3, Vector2};
+
+/// Why the clamp issued a hold instead of T(t_max).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HoldReason {
+    /// σ = 1.
+    SafetyStop(StopReason),
+    /// No phase policy is active.
+    Idle,
+    /// The team waits for every unit to agree on this phase change.
+    PhasePending(Transition),
+    /// Not even the previous command lies within V_k anywhere along the path.
+    NoAdmissibleStep,
+}
+
+/// What the clamp did this tick; plain data for the mission log and the operator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClampReport {
+    /// Why a hold was issued; `None` when T(t_max) was.
+    pub hold: Option<HoldReason>,
+    /// t_max of the issued step; 0 on a hold.
+    pub t_max: f64,
+    /// d to Y_k and the binding subsystem: of the issued step; of the previous command (t = 0)
+    /// when no step was admissible, naming the subsystem already out of tolerance; `None` when
+    /// the hold was requested (nothing evaluated).
+    pub distance: Option<StackedDistance>,
+}
+
+/// The inputs of one clamp step, one entry per unit.
+#[derive(Debug, Clone, Copy)]
+pub struct ClampInput<'a> {
+    /// Sensed state at tick k (arm joint positions and base pose are used).
+    pub sensed: &'a [UnitState],
+    /// S_k = U_{k-1}: the commands issued last tick.
+    pub previous: &'a [UnitCommand],
+    /// F_k: this tick's policy outputs.
+    pub target: &'a [UnitCommand],
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ClampError {
+    #[error("{what} has {got} units; the team has {expected}")]
+    UnitCount {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
+    #[error("unit {unit}: {field} is not finite")]
+    NonFinite { unit: usize, field: &'static str },
+    #[error("control period {0} s must be finite and positive")]
+    Period(f64),
+    #[error("a team needs at least one unit")]
+    EmptyTeam,
+    #[error(transparent)]
+    Config(#[from] crate::config::InvalidConfig),
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+    #[error(transparent)]
+    Stacked(#[from] StackedError),
+}
+
+/// The hold command of one unit: arm at its sensed joint positions, wheels stopped.
+pub fn hold_command(sensed: &UnitState) -> UnitCommand {
+    UnitCommand {
+        wheel_velocity_radps: [0.0; WHEEL_JOINTS],
+        arm_position_rad: sensed.arm.position_rad,
+    }
+}
+
+/// T(t, S, F) for one unit: (1 − t)·S + t·F per joint, exact at both ends.
+pub fn interpolate_command(s: &UnitCommand, f: &UnitCommand, t: f64) -> UnitCommand {
+    let lerp = |a: f64, b: f64| (1.0 - t) * a + t * b;
+    UnitCommand {
+        wheel_velocity_radps: std::array::from_fn(|j| {
+            lerp(s.wheel_velocity_radps[j], f.wheel_velocity_radps[j])
+        }),
+        arm_position_rad: std::array::from_fn(|j| {
+            lerp(s.arm_position_rad[j], f.arm_position_rad[j])
+        }),
+    }
+}
+
+/// The clamp of a team of N units, with its scratch preallocated; create once, then
+/// [`Clamp::step`] every tick without allocating.
+#[derive(Debug, Clone)]
+pub struct Clamp {
+    model: UnitModel,
+    tolerances: SyncTolerances,
+    search: SearchConfig,
+    control_period_s: f64,
+    /// Y_k.
+    sensed: StackedState,
+    /// The task-space image of the candidate T(t).
+    candidate: StackedState,
+}
+
+impl Clamp {
+    pub fn new(
+        model: UnitModel,
+        config: &SyncConfig,
+        control_period_s: f64,
+        team_size: usize,
+    ) -> Result<Self, ClampError> {
+        crate::config::Validate::validate(config)?;
+        if !(control_period_s.is_finite() && control_period_s > 0.0) {
+            return Err(ClampError::Period(control_period_s));
+        }
+        if team_size == 0 {
+            return Err(ClampError::EmptyTeam);
+        }
+        let rest = UnitPoses {
+            arm: Isometry3::identity(),
+            base_xy_m: Vector2::zeros(),
+        };
+        let team = StackedState {
+            units: vec![rest; team_size],
+        };
+        Ok(Clamp {
+            model,
+            tolerances: config.tolerances,
+            search: config.search,
+            control_period_s,
+            sensed: team.clone(),
+            candidate: team,
+        })
+    }
+
+    /// One tick: writes U_k for every unit into `issued` and reports t_max, d and the binding
+    /// subsystem. `hold` is the caller's reason to hold regardless (σ, Idle, pending change).
+    pub fn step(
+        &mut self,
+        input: &ClampInput,
+        hold: Option<HoldReason>,
+        issued: &mut [UnitCommand],
+    ) -> Result<ClampReport, ClampError> {
+        self.check(input, issued.len())?;
+        if let Some(reason) = hold {
+            return Ok(self.hold(input, reason, None, issued));
+        }
+        for (y, s) in self.sensed.units.iter_mut().zip(input.sensed) {
+            y.arm = self
+                .model
+                .arm_world_pose(&s.base_pose, &s.arm.position_rad)?;
+            y.base_xy_m = Vector2::new(s.base_pose.x_m, s.base_pose.y_m);
+        }
+        let full = self.distance_at(input, 1.0)?;
+        if full.value <= 1.0 {
+            return Ok(self.issue(input, 1.0, full, issued));
+        }
+        let cells = self.search.scan_cells;
+        let mut lowest = full;
+        for j in (0..cells).rev() {
+            let t = f64::from(j) / f64::from(cells);
+            let d = self.distance_at(input, t)?;
+            if d.value <= 1.0 {
+                let (t_max, d) = self.bisect(input, (t, d), f64::from(j + 1) / f64::from(cells))?;
+                return Ok(self.issue(input, t_max, d, issued));
+            }
+            lowest = d;
+        }
+        Ok(self.hold(input, HoldReason::NoAdmissibleStep, Some(lowest), issued))
+    }
+
+    /// Narrows [lo admissible, hi inadmissible] to the tolerance; returns lo and d there.
+    fn bisect(
+        &mut self,
+        input: &ClampInput,
+        (mut lo, mut d_lo): (f64, StackedDistance),
+        mut hi: f64,
+    ) -> Result<(f64, StackedDistance), ClampError> {
+        while hi - lo > self.search.bisection_tolerance {
+            let mid = 0.5 * (lo + hi);
+            let d = self.distance_at(input, mid)?;
+            if d.value <= 1.0 {
+                (lo, d_lo) = (mid, d);
+            } else {
+                hi = mid;
+            }
+        }
+        Ok((lo, d_lo))
+    }
+
+    /// d(X(t), Y_k): the task-space image of T(t) against the sensed stacked state.
+    fn distance_at(&mut self, input: &ClampInput, t: f64) -> Result<StackedDistance, ClampError> {
+        let commands = input.previous.iter().zip(input.target);
+        for ((x, s), (prev, target)) in self
+            .candidate
+            .units
+            .iter_mut()
+            .zip(input.sensed)
+            .zip(commands)
+        {
+            let command = interpolate_command(prev, target, t);
+            let base = self.model.integrate_base(
+                &s.base_pose,
+                &command.wheel_velocity_radps,
+                self.control_period_s,
+            );
+            x.arm = self
+                .model
+                .arm_world_pose(&base, &command.arm_position_rad)?;
+            x.base_xy_m = Vector2::new(base.x_m, base.y_m);
+        }
+        Ok(self.candidate.distance(&self.sensed, &self.tolerances)?)
+    }
+
+    fn issue(
+        &self,
+        input: &ClampInput,
+        t_max: f64,
+        d: StackedDistance,
+        issued: &mut [UnitCommand],
+    ) -> ClampReport {
+        for (u, (s, f)) in issued
+            .iter_mut()
+            .zip(input.previous.iter().zip(input.target))
+        {
+            *u = interpolate_command(s, f, t_max);
+        }
+        ClampReport {
+            hold: None,
+            t_max,
+            distance: Some(d),
+        }
+    }
+
+    fn hold(
+        &self,
+        input: &ClampInput,
+        reason: HoldReason,
+        distance: Option<StackedDistance>,
+        issued: &mut [UnitCommand],
+    ) -> ClampReport {
+        for (u, s) in issued.iter_mut().zip(input.sensed) {
+            *u = hold_command(s);
+        }
+        ClampReport {
+            hold: Some(reason),
+            t_max: 0.0,
+            distance,
+        }
+    }
+
+    /// Team sizes agree and every number used is finite; errors name the unit and field.
+    fn check(&self, input: &ClampInput, issued: usize) -> Result<(), ClampError> {
+        let expected = self.sensed.units.len();
+        for (what, got) in [
+            ("sensed", input.sensed.len()),
+            ("previous", input.previous.len()),
+            ("target", input.target.len()),
+            ("issued", issued),
+        ] {
+            if got != expected {
+                return Err(ClampError::UnitCount {
+                    what,
+                    got,
+                    expected,
+                });
+            }
+        }
+        for (unit, ((s, p), f)) in input
+            .sensed
+            .iter()
+            .zip(input.previous)
+            .zip(input.target)
+            .enumerate()
+        {
+            let b = &s.base_pose;
+            let fields: [(&'static str, &[f64]); 6] = [
+                ("sensed.arm.position_rad", &s.arm.position_rad),
+                ("sensed.base_pose", &[b.x_m, b.y_m, b.yaw_rad]),
+                ("previous.wheel_velocity_radps", &p.wheel_velocity_radps),
+                ("previous.arm_position_rad", &p.arm_position_rad),
+                ("target.wheel_velocity_radps", &f.wheel_velocity_radps),
+                ("target.arm_position_rad", &f.arm_position_rad),
+            ];
+            if let Some((field, _)) = fields
+                .iter()
+                .find(|(_, v)| v.iter().any(|x| !x.is_finite()))
+            {
+                return Err(ClampError::NonFinite { unit, field });
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,29 @@
+//! # moonhaul-coord
+//!
+//! The coordination layer of the paper's Section V that runs every control tick onboard:
+//!
+//! - [`gate`]: the phase MDP (eq. mode_transition) with measured, debounced events;
+//! - [`team`]: agreement of N units on phase changes (a barrier) and the team-wide safety stop;
+//! - [`clamp`]: the synchronization clamp that admits the largest safe step toward the policies'
+//!   target (eqs. stacked_state … stacked_metric) and names the subsystem that limits it;
+//! - [`message`]: versioned peer messages and their validation;
+//! - [`model`]: the unit kinematics the clamp evaluates (arm FK on a differential-drive base);
+//! - [`config`]: `configs/sync.toml`, `configs/gate.toml` and unit-model files.
+//!
+//! Per tick a unit validates and [`team::Team::receive`]s its messages, calls
+//! [`team::Team::tick`] (gate + agreement), runs the active policy when told to, and calls
+//! [`clamp::Clamp::step`] with the decision's hold reason. Neither tick call allocates.
+
+pub mod clamp;
+pub mod config;
+pub mod gate;
+pub mod message;
+pub mod model;
+pub mod team;
+
+pub use clamp::{Clamp, ClampInput, ClampReport, HoldReason};
+pub use config::{GateConfig, SyncConfig};
+pub use gate::{Measurements, PhaseGate};
+pub use message::{Envelope, Validator};
+pub use model::UnitModel;
+pub use team::{Decision, Directive, Team, TeamSettings};

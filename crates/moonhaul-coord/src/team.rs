@@ -1,0 +1,369 @@
+//! Multi-unit agreement: every unit runs the phase gate on the shared state, but a phase change
+//! takes effect only once every unit of the team has proposed it (a barrier).
+//!
+//! Protocol (for N units; each runs one [`Team`]):
+//! - A unit whose gate fires proposes the transition (mission, from, to), re-sends the proposal
+//!   every tick and holds until it commits. A unit that hears a peer's proposal for its own
+//!   phase holds too, so the team never moves while a change is pending.
+//! - A unit commits when it holds a matching proposal from every peer, or an acknowledgement
+//!   from any peer (a peer only commits, and acknowledges, after hearing all N proposals).
+//!   Acknowledgements are re-sent for one pending window so dropped ones are covered.
+//! - Any safety stop — this unit's fault, a peer's announced stop, the operator's stop, a peer
+//!   whose latest state is older than the staleness bound, a change pending longer than the
+//!   window, or a peer reporting a phase the barrier cannot explain — sends the unit to Idle at
+//!   once, without a barrier. Stops a unit detects itself are announced every tick they last.
+//! - Idle is left only on an operator start for a mission newer than any seen before; it is
+//!   one-shot, so a stopped team never resumes on its own.
+//!
+//! Consequences the tests check: no two units ever run different phase policies in the same
+//! tick (a unit runs a new phase only after all units proposed it, and a proposer holds until it
+//! commits), committed phases differ for at most the pending window plus one message delay,
+//! and a silent peer stops every unit as soon as its last state is older than the bound.
+
+use crate::clamp::HoldReason;
+use crate::config::AgreementConfig;
+use crate::gate::{next_phase, Measurements, PhaseEvents, PhaseGate};
+use crate::message::{
+    Announcements, Body, Envelope, FaultKind, OperatorCommand, Sender, StopReason, Transition,
+};
+use crate::GateConfig;
+use moonhaul_core::state::Phase;
+
+/// The default staleness bound, in control periods (issue 4).
+pub const DEFAULT_STALENESS_PERIODS: u32 = 3;
+
+/// Who this unit is and how its team runs; the daemon fills it from `configs/unit.toml`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TeamSettings {
+    /// Messages naming another team are rejected.
+    pub team: String,
+    pub team_size: usize,
+    /// This unit's index, 0-based.
+    pub unit_index: usize,
+    pub control_period_us: u64,
+    /// A peer whose latest state is older than this many control periods stops every unit.
+    pub staleness_periods: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TeamError {
+    #[error("team_size must be at least 1")]
+    EmptyTeam,
+    #[error("unit_index {index} is outside a team of {team_size}")]
+    UnitIndex { index: usize, team_size: usize },
+    #[error("team name must not be empty")]
+    EmptyName,
+    #[error("control_period_us must be positive")]
+    ZeroPeriod,
+    #[error("staleness_periods must be at least 1")]
+    ZeroStaleness,
+}
+
+impl TeamSettings {
+    /// The staleness bound in µs.
+    pub fn staleness_us(&self) -> u64 {
+        self.control_period_us
+            .saturating_mul(self.staleness_periods.into())
+    }
+
+    pub fn validate(&self) -> Result<(), TeamError> {
+        if self.team_size == 0 {
+            return Err(TeamError::EmptyTeam);
+        }
+        if self.unit_index >= self.team_size {
+            return Err(TeamError::UnitIndex {
+                index: self.unit_index,
+                team_size: self.team_size,
+            });
+        }
+        if self.team.is_empty() {
+            return Err(TeamError::EmptyName);
+        }
+        if self.control_period_us == 0 {
+            return Err(TeamError::ZeroPeriod);
+        }
+        if self.staleness_periods == 0 {
+            return Err(TeamError::ZeroStaleness);
+        }
+        Ok(())
+    }
+}
+
+/// What this unit does this tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Directive {
+    /// Run this phase's policy and clamp its command.
+    Run(Phase),
+    /// Issue the clamp's hold command.
+    Hold(HoldReason),
+}
+
+/// The result of one tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Decision {
+    /// The committed phase.
+    pub phase: Phase,
+    pub directive: Directive,
+    /// To send in this tick's [`crate::message::UnitTick`].
+    pub announce: Announcements,
+}
+
+impl Decision {
+    /// The hold to request from the clamp, if any.
+    pub fn hold(&self) -> Option<HoldReason> {
+        match self.directive {
+            Directive::Run(_) => None,
+            Directive::Hold(reason) => Some(reason),
+        }
+    }
+}
+
+/// What this unit knows of one peer.
+#[derive(Debug, Clone, Copy, Default)]
+struct PeerView {
+    /// Sender stamp of its latest state, µs.
+    last_state_us: Option<u64>,
+    /// Its committed phase, as last reported.
+    phase: Option<Phase>,
+    proposal: Option<Transition>,
+    ack: Option<Transition>,
+    /// A safety stop it announced since the last tick.
+    stop: bool,
+}
+
+/// One unit's side of the agreement; create once, feed validated messages with
+/// [`Team::receive`], then call [`Team::tick`] once per control tick. Does not allocate after
+/// construction.
+#[derive(Debug, Clone)]
+pub struct Team {
+    settings: TeamSettings,
+    agreement: AgreementConfig,
+    gate: PhaseGate,
+    tick: u64,
+    phase: Phase,
+    /// The mission of the latest accepted start.
+    mission: Option<u32>,
+    /// The mission of a new start received since the last tick.
+    start: Option<u32>,
+    operator_stop: bool,
+    peers: Vec<PeerView>,
+    /// This unit's own outstanding proposal.
+    proposal: Option<Transition>,
+    /// First tick of the current pending episode (own or a peer's proposal).
+    pending_since: Option<u64>,
+    /// The last commit and how many more ticks to acknowledge it.
+    ack: Option<(Transition, u32)>,
+}
+
+impl Team {
+    pub fn new(settings: TeamSettings, gate: &GateConfig) -> Result<Self, TeamError> {
+        settings.validate()?;
+        Ok(Team {
+            peers: vec![PeerView::default(); settings.team_size],
+            settings,
+            agreement: gate.agreement,
+            gate: PhaseGate::new(gate),
+            tick: 0,
+            phase: Phase::Idle,
+            mission: None,
+            start: None,
+            operator_stop: false,
+            proposal: None,
+            pending_since: None,
+            ack: None,
+        })
+    }
+
+    /// The committed phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Takes in one message that passed the [`crate::message::Validator`].
+    pub fn receive(&mut self, message: &Envelope) {
+        let peer = match message.sender {
+            Sender::Unit(i) if i != self.settings.unit_index => self.peers.get_mut(i),
+            _ => None,
+        };
+        match (&message.body, peer) {
+            (Body::Unit(tick), Some(peer)) => {
+                if peer.last_state_us.is_none_or(|t| message.stamp_us >= t) {
+                    peer.last_state_us = Some(message.stamp_us);
+                    peer.phase = Some(tick.phase);
+                }
+                // Announcements repeat while they hold, so the latest message is the peer's
+                // current word; a stop counts for the tick it arrives in.
+                let a = &tick.announce;
+                peer.proposal = a.propose;
+                peer.ack = a.ack;
+                peer.stop |= a.safety_stop.is_some();
+            }
+            (Body::Operator(OperatorCommand::Start { mission }), _)
+                if self.mission.is_none_or(|m| *mission > m) =>
+            {
+                self.start = Some(*mission);
+            }
+            (Body::Operator(OperatorCommand::Stop), _) => self.operator_stop = true,
+            // Unit bodies from a non-peer: the validator already rejects these.
+            _ => {}
+        }
+    }
+
+    /// One control tick at local time `now_us`, after this tick's messages were received.
+    /// `fault` is this unit's own fault, if any.
+    pub fn tick(
+        &mut self,
+        now_us: u64,
+        measured: &Measurements,
+        fault: Option<FaultKind>,
+    ) -> Decision {
+        self.tick += 1;
+        let stop = self.stop_reason(now_us, fault);
+        // A start counts only in Idle with nothing pending and no stop; otherwise it is dropped
+        // (and a later start must name a newer mission anyway).
+        let idle = self.phase == Phase::Idle && self.proposal.is_none();
+        let start = self.start.take().filter(|_| idle && stop.is_none());
+        if start.is_some() {
+            self.mission = start;
+        }
+        self.operator_stop = false;
+        for peer in &mut self.peers {
+            peer.stop = false;
+        }
+        let wanted = self
+            .gate
+            .step(self.phase, measured, start.is_some(), stop.is_some());
+        let mut outgoing = Announcements::default();
+        if let Some(reason) = stop {
+            self.phase = Phase::Idle;
+            self.reset_agreement();
+            outgoing.safety_stop = reason.announce().then_some(reason);
+            let directive = Directive::Hold(HoldReason::SafetyStop(reason));
+            return Decision {
+                phase: self.phase,
+                directive,
+                announce: outgoing,
+            };
+        }
+        if self.proposal.is_none() && wanted != self.phase {
+            // A start has set the mission; later transitions stay in it.
+            if let Some(mission) = self.mission {
+                self.proposal = Some(Transition {
+                    mission,
+                    from: self.phase,
+                    to: wanted,
+                });
+            }
+        }
+        if let Some(t) = self.proposal {
+            let acked = self.peers.iter().any(|p| p.ack == Some(t));
+            let me = self.settings.unit_index;
+            let all = self
+                .peers
+                .iter()
+                .enumerate()
+                .all(|(i, p)| i == me || p.proposal == Some(t));
+            if acked || all {
+                self.phase = t.to;
+                self.reset_agreement();
+                self.ack = Some((t, self.agreement.pending_window_ticks));
+            }
+        }
+        outgoing.propose = self.proposal;
+        if let Some((t, left)) = &mut self.ack {
+            outgoing.ack = Some(*t);
+            *left -= 1;
+            if *left == 0 {
+                self.ack = None;
+            }
+        }
+        let pending = self.proposal.or_else(|| {
+            let (phase, mission) = (self.phase, self.mission);
+            self.peers
+                .iter()
+                .filter_map(|p| p.proposal)
+                .find(|t| t.from == phase && Some(t.mission) == mission)
+        });
+        let directive = match pending {
+            Some(t) => {
+                self.pending_since.get_or_insert(self.tick);
+                Directive::Hold(HoldReason::PhasePending(t))
+            }
+            None => {
+                self.pending_since = None;
+                match self.phase {
+                    Phase::Idle => Directive::Hold(HoldReason::Idle),
+                    active => Directive::Run(active),
+                }
+            }
+        };
+        Decision {
+            phase: self.phase,
+            directive,
+            announce: outgoing,
+        }
+    }
+
+    /// σ for this tick and its reason: the first that applies, in the order listed.
+    fn stop_reason(&self, now_us: u64, fault: Option<FaultKind>) -> Option<StopReason> {
+        let me = self.settings.unit_index;
+        let staleness_us = self.settings.staleness_us();
+        let peers = || self.peers.iter().enumerate().filter(move |(i, _)| *i != me);
+        let timed_out = self.pending_since.is_some_and(|since| {
+            self.tick - since >= u64::from(self.agreement.pending_window_ticks)
+        });
+        fault
+            .map(StopReason::Fault)
+            .or(self.operator_stop.then_some(StopReason::Operator))
+            .or_else(|| {
+                peers()
+                    .find(|(_, p)| p.stop)
+                    .map(|(unit, _)| StopReason::PeerStop { unit })
+            })
+            .or_else(|| {
+                peers()
+                    .find(|(_, p)| {
+                        p.last_state_us
+                            .is_none_or(|t| now_us > t.saturating_add(staleness_us))
+                    })
+                    .map(|(unit, _)| StopReason::PeerStale { unit })
+            })
+            .or(timed_out.then_some(StopReason::PhaseTimeout))
+            .or_else(|| {
+                peers()
+                    .find(|(_, p)| p.phase.is_some_and(|q| !self.explains(q)))
+                    .map(|(unit, _)| StopReason::PhaseMismatch { unit })
+            })
+    }
+
+    /// Whether a peer reporting committed phase `peer` is consistent with the barrier: the same
+    /// phase, one step ahead while this unit proposes that step (the peer committed first), or
+    /// one step behind (this unit committed first, so the peer proposed and is about to).
+    fn explains(&self, peer: Phase) -> bool {
+        peer == self.phase
+            || self.proposal.is_some_and(|t| t.to == peer)
+            || successor(peer) == self.phase
+    }
+
+    fn reset_agreement(&mut self) {
+        self.proposal = None;
+        self.pending_since = None;
+        self.ack = None;
+        for peer in &mut self.peers {
+            peer.proposal = None;
+            peer.ack = None;
+        }
+    }
+}
+
+/// The phase a task-driven transition leads to: the gate's table with every task event set.
+fn successor(phase: Phase) -> Phase {
+    let every_task_event = PhaseEvents {
+        safety_stop: false,
+        start: true,
+        payload_lifted: true,
+        at_goal: true,
+        released: true,
+    };
+    next_phase(phase, &every_task_event)
+}
