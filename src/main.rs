@@ -3,6 +3,7 @@
 
 mod can_cmd;
 mod policy_cmd;
+mod sim_cmd;
 mod urdf_cmd;
 
 use clap::{Parser, Subcommand};
@@ -29,6 +30,9 @@ enum Command {
     /// CAN bus tools: emulate a unit's CiA 402 drives and record the master's traffic.
     #[command(subcommand)]
     Can(can_cmd::CanCommand),
+    /// Simulator tools: run the scripted lift-transport-place mission (CSV + PNG), benchmark.
+    #[command(subcommand)]
+    Sim(sim_cmd::SimCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -37,6 +41,7 @@ fn main() -> std::process::ExitCode {
         Command::Urdf(cmd) => urdf_cmd::run(cmd),
         Command::Policy(cmd) => policy_cmd::run(cmd),
         Command::Can(cmd) => can_cmd::run(cmd),
+        Command::Sim(cmd) => sim_cmd::run(cmd),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

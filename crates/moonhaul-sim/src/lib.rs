@@ -1,7 +1,54 @@
 //! # moonhaul-sim
 //!
-//! The training and test world: two wheel–arm units and a shared payload on randomized
-//! lunar-analog terrain. Grows into the rapier3d scene and batched environments; it starts
-//! with the terrain model of the paper's domain randomization.
+//! The training and test world: two wheel–arm units rigidly grasping one payload on randomized
+//! lunar-analog terrain, in rapier3d.
+//!
+//! - [`config`]: `configs/sim.toml` — rates, solver settings, motor gains, grasp limits.
+//! - [`model`]: URDFs split into rapier bodies; [`ik`]: arm inverse kinematics on core's FK.
+//! - [`randomization`] and [`terrain`]: the paper's domain randomization.
+//! - [`scene`]: one world ([`scene::Env`]) — formation, multibodies, grasps, readout.
+//! - [`batch`]: many worlds stepped in parallel, deterministically.
+//! - [`scripted`]: the non-learned lift → transport → place controller; [`accuracy`]: the
+//!   configured solver settings against a fine reference.
 
+use std::path::PathBuf;
+
+pub mod accuracy;
+pub mod batch;
+pub mod config;
+pub mod convert;
+pub mod ik;
+pub mod model;
+pub mod randomization;
+pub mod scene;
+pub mod scripted;
 pub mod terrain;
+
+pub use accuracy::AccuracyReport;
+pub use batch::BatchEnv;
+pub use config::SimConfig;
+pub use randomization::PayloadKind;
+pub use scene::{Env, EnvOptions, EnvState, SceneModel};
+
+/// Why the simulator cannot start or continue; each variant names the file, field or body.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("cannot read {}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("invalid TOML in {}", path.display())]
+    Toml {
+        path: PathBuf,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
+    #[error("config field {field}: {reason}")]
+    Config { field: &'static str, reason: String },
+    #[error("model {}: {reason}", path.display())]
+    Model { path: PathBuf, reason: String },
+    #[error("kinematics: {0}")]
+    Kinematics(String),
+}

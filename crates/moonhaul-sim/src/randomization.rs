@@ -1,0 +1,367 @@
+//! Domain randomization (paper, Sec. VI-A): wheel–ground friction μ ~ U(0.6, 1.0), terrain
+//! perturbations (see [`crate::terrain`]), wheel command noise N(0, 0.05²) rad/s, arm command
+//! noise N(0, 0.01²) rad, initial joint variation, payload choice and mass.
+//!
+//! The paper gives no number for the initial joint variation; we draw each arm joint's offset
+//! from U(−δ, δ) with δ = 0.02 rad (≈ 1 cm at the end effector) so grasps start slightly
+//! asymmetric. Payload mass is scaled by U(lo, hi), 1 by default: the payload choice already
+//! spans the paper's masses.
+//!
+//! Every draw comes from the env's own [`ChaCha8Rng`], so an env's episode depends on its seed
+//! only, never on which thread steps it.
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+
+use crate::terrain::TerrainRandomization;
+use crate::SimError;
+use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
+
+/// The payloads of the paper.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PayloadKind {
+    /// Cargo box, 7.5 kg.
+    Box,
+    /// Cargo box with bricks, 9.5 kg.
+    Bricks,
+    /// Sledge, 5.3 kg, elongated; unseen in the paper's training.
+    Sledge,
+}
+
+impl PayloadKind {
+    pub const ALL: [PayloadKind; 3] = [PayloadKind::Box, PayloadKind::Bricks, PayloadKind::Sledge];
+
+    /// The name used in configs, CLI flags and asset file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            PayloadKind::Box => "box",
+            PayloadKind::Bricks => "bricks",
+            PayloadKind::Sledge => "sledge",
+        }
+    }
+}
+
+impl std::str::FromStr for PayloadKind {
+    type Err = SimError;
+
+    fn from_str(s: &str) -> Result<Self, SimError> {
+        PayloadKind::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| SimError::Config {
+                field: "payload",
+                reason: format!("unknown payload {s:?} (expected box, bricks or sledge)"),
+            })
+    }
+}
+
+/// Ranges of every randomized term.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Randomization {
+    /// Wheel–ground friction coefficient range, uniform.
+    pub wheel_friction: [f64; 2],
+    /// Standard deviation of the Gaussian noise added to each wheel velocity command, rad/s.
+    pub wheel_velocity_noise_std_radps: f64,
+    /// Standard deviation of the Gaussian noise added to each arm position command, rad.
+    pub arm_position_noise_std_rad: f64,
+    /// Half-width of the uniform offset added to each arm joint at reset, rad.
+    pub initial_joint_variation_rad: f64,
+    /// Payloads drawn uniformly at reset.
+    pub payloads: Vec<PayloadKind>,
+    /// Payload mass scale range, uniform.
+    pub payload_mass_scale: [f64; 2],
+    pub terrain: TerrainRandomization,
+}
+
+impl Default for Randomization {
+    fn default() -> Self {
+        Randomization {
+            wheel_friction: [0.6, 1.0],
+            wheel_velocity_noise_std_radps: 0.05,
+            arm_position_noise_std_rad: 0.01,
+            initial_joint_variation_rad: 0.02,
+            payloads: vec![PayloadKind::Box, PayloadKind::Bricks],
+            payload_mass_scale: [1.0, 1.0],
+            terrain: TerrainRandomization {
+                max_peak_to_peak_m: 0.02,
+                correlation_length_m: [0.05, 0.15],
+            },
+        }
+    }
+}
+
+/// What one episode of one env got: drawn at reset.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeDraw {
+    pub payload: PayloadKind,
+    pub payload_mass_scale: f64,
+    pub wheel_friction: f64,
+    /// Per unit, per arm joint, rad.
+    pub initial_joint_offset_rad: [[f64; ARM_JOINTS]; 2],
+    /// Terrain randomization for this episode; `None` for flat ground.
+    pub terrain: Option<TerrainRandomization>,
+}
+
+/// Per-step command noise, drawn from the env's stream.
+#[derive(Debug, Clone, Copy)]
+pub struct CommandNoise {
+    wheel: Option<Normal<f64>>,
+    arm: Option<Normal<f64>>,
+}
+
+impl CommandNoise {
+    /// Noise `(wheel rad/s, arm rad)` for one unit's command.
+    pub fn sample(&self, rng: &mut ChaCha8Rng) -> ([f64; WHEEL_JOINTS], [f64; ARM_JOINTS]) {
+        let mut wheel = [0.0; WHEEL_JOINTS];
+        let mut arm = [0.0; ARM_JOINTS];
+        if let Some(d) = self.wheel {
+            wheel.iter_mut().for_each(|w| *w = d.sample(rng));
+        }
+        if let Some(d) = self.arm {
+            arm.iter_mut().for_each(|a| *a = d.sample(rng));
+        }
+        (wheel, arm)
+    }
+}
+
+fn uniform(rng: &mut ChaCha8Rng, [lo, hi]: [f64; 2]) -> f64 {
+    if hi > lo {
+        rng.random_range(lo..hi)
+    } else {
+        lo
+    }
+}
+
+impl Randomization {
+    /// Checks ranges; errors name the field.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |field: &'static str, reason: String| Err(SimError::Config { field, reason });
+        let range = |field: &'static str, [lo, hi]: [f64; 2], min: f64| {
+            if lo.is_finite() && hi.is_finite() && lo >= min && hi >= lo {
+                Ok(())
+            } else {
+                bad(field, format!("[{lo}, {hi}] needs {min} <= low <= high"))
+            }
+        };
+        range("randomization.wheel_friction", self.wheel_friction, 0.0)?;
+        range(
+            "randomization.payload_mass_scale",
+            self.payload_mass_scale,
+            f64::MIN_POSITIVE,
+        )?;
+        for (field, v) in [
+            (
+                "randomization.wheel_velocity_noise_std_radps",
+                self.wheel_velocity_noise_std_radps,
+            ),
+            (
+                "randomization.arm_position_noise_std_rad",
+                self.arm_position_noise_std_rad,
+            ),
+            (
+                "randomization.initial_joint_variation_rad",
+                self.initial_joint_variation_rad,
+            ),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(field, format!("{v} must be finite and >= 0"));
+            }
+        }
+        if self.payloads.is_empty() {
+            return bad(
+                "randomization.payloads",
+                "needs at least one payload".into(),
+            );
+        }
+        // The terrain model validates its own ranges; sample a tiny field to run that check.
+        let mut rng = rand::SeedableRng::seed_from_u64(0);
+        self.terrain
+            .sample(2, 0.01, &mut rng as &mut ChaCha8Rng)
+            .map(|_| ())
+            .map_err(|e| SimError::Config {
+                field: "randomization.terrain",
+                reason: e.to_string(),
+            })
+    }
+
+    /// Draws one episode's randomization.
+    pub fn draw(&self, rng: &mut ChaCha8Rng) -> EpisodeDraw {
+        let payload = self.payloads[rng.random_range(0..self.payloads.len())];
+        let payload_mass_scale = uniform(rng, self.payload_mass_scale);
+        let wheel_friction = uniform(rng, self.wheel_friction);
+        let d = self.initial_joint_variation_rad;
+        let mut initial_joint_offset_rad = [[0.0; ARM_JOINTS]; 2];
+        for q in initial_joint_offset_rad.iter_mut().flatten() {
+            *q = uniform(rng, [-d, d]);
+        }
+        EpisodeDraw {
+            payload,
+            payload_mass_scale,
+            wheel_friction,
+            initial_joint_offset_rad,
+            terrain: Some(self.terrain),
+        }
+    }
+
+    /// The per-step command noise distributions.
+    pub fn command_noise(&self) -> CommandNoise {
+        let normal = |std: f64| {
+            (std > 0.0)
+                .then(|| Normal::new(0.0, std))
+                .and_then(Result::ok)
+        };
+        CommandNoise {
+            wheel: normal(self.wheel_velocity_noise_std_radps),
+            arm: normal(self.arm_position_noise_std_rad),
+        }
+    }
+
+    /// The nominal episode with `payload`: mid-range friction, flat ground, no offsets.
+    pub fn nominal(&self, payload: PayloadKind) -> EpisodeDraw {
+        EpisodeDraw {
+            payload,
+            payload_mass_scale: 1.0,
+            wheel_friction: 0.5 * (self.wheel_friction[0] + self.wheel_friction[1]),
+            initial_joint_offset_rad: [[0.0; ARM_JOINTS]; 2],
+            terrain: None,
+        }
+    }
+
+    /// No noise at all (for `--no-randomization` runs).
+    pub fn noiseless() -> CommandNoise {
+        CommandNoise {
+            wheel: None,
+            arm: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    fn mean_std(xs: &[f64]) -> (f64, f64) {
+        let n = xs.len() as f64;
+        let mean = xs.iter().sum::<f64>() / n;
+        (
+            mean,
+            (xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt(),
+        )
+    }
+
+    /// The Kolmogorov–Smirnov critical distance at α = 0.001 for `n` samples.
+    fn ks_critical(n: usize) -> f64 {
+        1.95 / (n as f64).sqrt()
+    }
+
+    /// Kolmogorov–Smirnov distance of samples from U(lo, hi).
+    fn ks_uniform(xs: &mut [f64], lo: f64, hi: f64) -> f64 {
+        xs.sort_by(f64::total_cmp);
+        let n = xs.len() as f64;
+        xs.iter()
+            .enumerate()
+            .map(|(i, &x)| {
+                let cdf = ((x - lo) / (hi - lo)).clamp(0.0, 1.0);
+                (cdf - i as f64 / n)
+                    .abs()
+                    .max((cdf - (i + 1) as f64 / n).abs())
+            })
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn friction_joint_offsets_and_payloads_follow_their_uniform_distributions() {
+        let r = Randomization {
+            payloads: PayloadKind::ALL.to_vec(),
+            ..Default::default()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let draws: Vec<EpisodeDraw> = (0..4000).map(|_| r.draw(&mut rng)).collect();
+        let mut mu: Vec<f64> = draws.iter().map(|d| d.wheel_friction).collect();
+        assert!(ks_uniform(&mut mu, 0.6, 1.0) < ks_critical(mu.len()));
+        let mut q: Vec<f64> = draws
+            .iter()
+            .flat_map(|d| d.initial_joint_offset_rad.concat())
+            .collect();
+        assert!(ks_uniform(&mut q, -0.02, 0.02) < ks_critical(q.len()));
+        for kind in PayloadKind::ALL {
+            let share = draws.iter().filter(|d| d.payload == kind).count() as f64 / 4000.0;
+            assert!((share - 1.0 / 3.0).abs() < 0.03, "{kind:?}: {share}");
+        }
+        assert!(draws.iter().all(|d| d.payload_mass_scale == 1.0));
+    }
+
+    #[test]
+    fn command_noise_has_the_papers_standard_deviations() {
+        let noise = Randomization::default().command_noise();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let (mut wheel, mut arm) = (Vec::new(), Vec::new());
+        for _ in 0..20_000 {
+            let (w, a) = noise.sample(&mut rng);
+            wheel.extend(w);
+            arm.extend(a);
+        }
+        let (wm, ws) = mean_std(&wheel);
+        let (am, asd) = mean_std(&arm);
+        assert!(
+            wm.abs() < 0.002 && (ws - 0.05).abs() < 0.001,
+            "wheel {wm} {ws}"
+        );
+        assert!(
+            am.abs() < 0.0003 && (asd - 0.01).abs() < 0.0002,
+            "arm {am} {asd}"
+        );
+        let none = Randomization::noiseless().sample(&mut rng);
+        assert_eq!(none, ([0.0; WHEEL_JOINTS], [0.0; ARM_JOINTS]));
+    }
+
+    #[test]
+    fn payload_mass_scale_is_uniform_when_configured() {
+        let r = Randomization {
+            payload_mass_scale: [0.8, 1.2],
+            ..Default::default()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let mut s: Vec<f64> = (0..4000)
+            .map(|_| r.draw(&mut rng).payload_mass_scale)
+            .collect();
+        assert!(ks_uniform(&mut s, 0.8, 1.2) < ks_critical(s.len()));
+    }
+
+    #[test]
+    fn terrain_amplitude_and_correlation_length_are_uniform_in_the_papers_ranges() {
+        let terrain = Randomization::default().terrain;
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let (mut amplitude, mut length) = (Vec::new(), Vec::new());
+        for _ in 0..2000 {
+            let field = terrain.sample(8, 0.01, &mut rng).unwrap();
+            amplitude.push(field.peak_to_peak_m());
+            length.push(field.correlation_length_m);
+        }
+        assert!(ks_uniform(&mut amplitude, 0.0, 0.02) < ks_critical(amplitude.len()));
+        assert!(ks_uniform(&mut length, 0.05, 0.15) < ks_critical(length.len()));
+    }
+
+    #[test]
+    fn bad_ranges_are_named() {
+        let r = Randomization {
+            wheel_friction: [1.0, 0.6],
+            ..Default::default()
+        };
+        assert!(r
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("wheel_friction"));
+        let r = Randomization {
+            payloads: vec![],
+            ..Default::default()
+        };
+        assert!(r.validate().unwrap_err().to_string().contains("payloads"));
+    }
+}
