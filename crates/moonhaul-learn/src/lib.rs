@@ -1,7 +1,31 @@
 //! # moonhaul-learn
 //!
-//! Training in simulation: phase tasks, PPO on libtorch through `tch`, and export of trained
-//! actors to the onboard policy format of [`moonhaul_core::policy`]. This is the only crate in
-//! the workspace that links libtorch; nothing that runs onboard depends on it.
+//! Training in simulation: PPO on libtorch through `tch`, faithful to rsl_rl (the PPO the paper
+//! used), the environments it trains on, and export of trained actors to the onboard policy
+//! format of [`moonhaul_core::policy`]. This is the only crate in the workspace that links
+//! libtorch; nothing that runs onboard depends on it.
+//!
+//! The split follows rsl_rl: [`env`] (what a batched environment offers), [`storage`] (rollout
+//! buffer and GAE), [`ppo`] (the update), [`runner`] (rollout/update loop and evaluation),
+//! [`trainer`] (the run folder: config, metrics, plots, checkpoints, export).
 
+pub mod actor_critic;
+pub mod adam;
+pub mod checkpoint;
+pub mod config;
+pub mod env;
+pub mod error;
+pub mod export;
+pub mod gaussian;
+pub mod metrics;
 pub mod mlp;
+pub mod normalizer;
+pub mod pendulum;
+pub mod plot;
+pub mod ppo;
+pub mod runner;
+pub mod storage;
+pub mod task;
+pub mod trainer;
+
+pub use error::LearnError;

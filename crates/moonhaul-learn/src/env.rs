@@ -1,0 +1,91 @@
+//! The batched-environment interface the trainer drives and the simulator's batched envs
+//! implement.
+//!
+//! All buffers are flat, row-major `f64` slices (`env` major): `obs[i * obs_dim + k]` is
+//! observation entry `k` of env `i`. The trainer converts to f32 tensors; env math stays f64.
+//!
+//! # Auto-reset
+//!
+//! [`VecEnv::step`] resets an env **in the same call** in which its episode ends (the
+//! IsaacLab / rsl_rl convention): for such an env, `obs` already holds the first observation
+//! of the next episode, `terminated` or `truncated` says why the old one ended, and
+//! `final_obs` holds the observation the old episode ended in. The trainer needs the latter
+//! to bootstrap time-outs with `γ V(s_final)`: a truncated episode was cut by the clock, not
+//! finished, so its value did not drop to zero. Rows of `final_obs` for envs that did not end
+//! are unspecified.
+
+use crate::LearnError;
+
+/// One batched step's outputs, reused across steps (allocate once with [`VecStep::new`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VecStep {
+    /// `[num_envs * obs_dim]`: observation after the step (after auto-reset where an episode
+    /// ended).
+    pub obs: Vec<f64>,
+    /// `[num_envs]`: reward of the transition.
+    pub rewards: Vec<f64>,
+    /// `[num_envs]`: the episode reached a terminal state (no value beyond it).
+    pub terminated: Vec<bool>,
+    /// `[num_envs]`: the episode was cut by the time limit (not terminal).
+    pub truncated: Vec<bool>,
+    /// `[num_envs * obs_dim]`: last observation of each episode that ended this step.
+    pub final_obs: Vec<f64>,
+}
+
+impl VecStep {
+    pub fn new(num_envs: usize, obs_dim: usize) -> Self {
+        VecStep {
+            obs: vec![0.0; num_envs * obs_dim],
+            rewards: vec![0.0; num_envs],
+            terminated: vec![false; num_envs],
+            truncated: vec![false; num_envs],
+            final_obs: vec![0.0; num_envs * obs_dim],
+        }
+    }
+}
+
+/// A fixed-size batch of independent environments of one task.
+///
+/// Actions are the policy's raw outputs; an env maps them to its physical command as
+/// `offset + scale ⊙ action` (then applies its own limits). [`VecEnv::action_scale`] and
+/// [`VecEnv::action_offset`] report that map so the exported policy emits physical commands.
+pub trait VecEnv {
+    fn num_envs(&self) -> usize;
+    fn obs_dim(&self) -> usize;
+    fn action_dim(&self) -> usize;
+
+    /// `[action_dim]` scale of the action map (default: identity).
+    fn action_scale(&self) -> Vec<f64> {
+        vec![1.0; self.action_dim()]
+    }
+
+    /// `[action_dim]` offset of the action map (default: none).
+    fn action_offset(&self) -> Vec<f64> {
+        vec![0.0; self.action_dim()]
+    }
+
+    /// Reseeds every env's randomness from `seed` (same seed, same initial states) and starts
+    /// new episodes; writes the first observations into `obs` (`[num_envs * obs_dim]`).
+    fn reset(&mut self, seed: u64, obs: &mut [f64]) -> Result<(), LearnError>;
+
+    /// Starts a new episode in env `index` alone, drawing from its current random stream;
+    /// writes its first observation into `obs` (`[obs_dim]`).
+    fn reset_env(&mut self, index: usize, obs: &mut [f64]) -> Result<(), LearnError>;
+
+    /// Advances every env by one control step with `actions` (`[num_envs * action_dim]`),
+    /// auto-resetting finished episodes as described in the [module docs](self).
+    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError>;
+}
+
+/// Checks a flat batch's length: shared by every [`VecEnv`] implementation.
+pub fn check_len(what: &'static str, data: &[f64], expected: usize) -> Result<(), LearnError> {
+    if data.len() == expected {
+        Ok(())
+    } else {
+        Err(LearnError::Shape {
+            what,
+            expected,
+            found: data.len(),
+        })
+    }
+}

@@ -1,0 +1,64 @@
+//! The library's one error type: every way training input (a config, a checkpoint, an
+//! environment's output) can be wrong has its own variant naming what is at fault.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum LearnError {
+    /// Reading or writing a file failed.
+    #[error("cannot access {}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A training config is not valid TOML for [`TrainConfig`](crate::config::TrainConfig).
+    #[error("cannot parse training config {}", path.display())]
+    ConfigParse {
+        path: PathBuf,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
+    /// A config value parses but is out of range.
+    #[error("config field `{field}` is invalid: {reason}")]
+    InvalidConfig { field: String, reason: String },
+    /// The config names a task this build cannot construct yet.
+    #[error("task `{task}` is not available: {reason}")]
+    TaskUnavailable { task: String, reason: String },
+    /// A batch passed to an environment has the wrong length.
+    #[error("{what} has {found} values, expected {expected}")]
+    Shape {
+        what: &'static str,
+        expected: usize,
+        found: usize,
+    },
+    /// An environment or the learner produced NaN or infinity.
+    #[error("{what} is not finite")]
+    NonFinite { what: String },
+    /// A checkpoint file is not one this build wrote, or does not fit the model.
+    #[error("checkpoint {} is unusable: {reason}", path.display())]
+    Checkpoint { path: PathBuf, reason: String },
+    /// An existing `metrics.csv` to resume cannot be read back.
+    #[error("{}:{line}: {reason}", path.display())]
+    Metrics {
+        path: PathBuf,
+        line: usize,
+        reason: String,
+    },
+    /// Drawing a learning curve failed.
+    #[error("cannot draw {}: {reason}", path.display())]
+    Plot { path: PathBuf, reason: String },
+    /// libtorch reported an error.
+    #[error(transparent)]
+    Torch(#[from] tch::TchError),
+    /// The exported policy was rejected by the onboard runtime's validation.
+    #[error(transparent)]
+    Policy(#[from] moonhaul_core::policy::PolicyError),
+}
+
+impl LearnError {
+    pub(crate) fn io(path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
+        let path = path.into();
+        move |source| LearnError::Io { path, source }
+    }
+}

@@ -1,0 +1,271 @@
+//! The rollout buffer (rsl_rl's `RolloutStorage`): `[T, N, …]` tensors filled step by step,
+//! then GAE, whole-batch advantage normalisation and shuffled minibatches.
+
+use tch::{Device, Kind, Tensor};
+
+/// Added to the advantage std (rsl_rl's constant).
+const ADV_EPS: f64 = 1e-8;
+
+/// One step of all envs, as the PPO update needs it later.
+#[derive(Debug)]
+pub struct Transition<'a> {
+    /// `[N, O]` raw observations the action was taken in.
+    pub obs: &'a Tensor,
+    pub actions: &'a Tensor,
+    /// `[N]` rewards, time-out bootstrap already added.
+    pub rewards: &'a Tensor,
+    /// `[N]` 1.0 where the episode ended (terminated or truncated).
+    pub dones: &'a Tensor,
+    pub values: &'a Tensor,
+    pub log_probs: &'a Tensor,
+    pub means: &'a Tensor,
+    pub stds: &'a Tensor,
+}
+
+/// One minibatch, flattened over time and envs.
+#[derive(Debug)]
+pub struct Batch {
+    pub obs: Tensor,
+    pub actions: Tensor,
+    pub old_values: Tensor,
+    pub advantages: Tensor,
+    pub returns: Tensor,
+    pub old_log_probs: Tensor,
+    pub old_means: Tensor,
+    pub old_stds: Tensor,
+}
+
+#[derive(Debug)]
+pub struct RolloutStorage {
+    obs: Tensor,
+    actions: Tensor,
+    rewards: Tensor,
+    dones: Tensor,
+    values: Tensor,
+    log_probs: Tensor,
+    means: Tensor,
+    stds: Tensor,
+    returns: Tensor,
+    advantages: Tensor,
+    step: i64,
+}
+
+impl RolloutStorage {
+    pub fn new(steps: usize, envs: usize, obs_dim: usize, action_dim: usize) -> Self {
+        let (t, n) = (steps as i64, envs as i64);
+        let z = |shape: &[i64]| Tensor::zeros(shape, (Kind::Float, Device::Cpu));
+        RolloutStorage {
+            obs: z(&[t, n, obs_dim as i64]),
+            actions: z(&[t, n, action_dim as i64]),
+            rewards: z(&[t, n]),
+            dones: z(&[t, n]),
+            values: z(&[t, n]),
+            log_probs: z(&[t, n]),
+            means: z(&[t, n, action_dim as i64]),
+            stds: z(&[t, n, action_dim as i64]),
+            returns: z(&[t, n]),
+            advantages: z(&[t, n]),
+            step: 0,
+        }
+    }
+
+    pub fn steps(&self) -> i64 {
+        self.obs.size()[0]
+    }
+
+    pub fn is_full(&self) -> bool {
+        self.step == self.steps()
+    }
+
+    /// Appends one step. Panics past capacity: the runner owns the step count.
+    pub fn add(&mut self, t: &Transition<'_>) {
+        assert!(!self.is_full(), "rollout storage overflow");
+        let s = self.step;
+        for (dst, src) in [
+            (&mut self.obs, t.obs),
+            (&mut self.actions, t.actions),
+            (&mut self.rewards, t.rewards),
+            (&mut self.dones, t.dones),
+            (&mut self.values, t.values),
+            (&mut self.log_probs, t.log_probs),
+            (&mut self.means, t.means),
+            (&mut self.stds, t.stds),
+        ] {
+            dst.get(s).copy_(src);
+        }
+        self.step += 1;
+    }
+
+    /// GAE returns and whole-batch-normalised advantages; `last_values` `[N]` are the critic's
+    /// values of the observations after the last step. Empties the buffer for the next rollout
+    /// (the data stays readable by [`RolloutStorage::minibatches`]).
+    pub fn compute_returns(&mut self, last_values: &Tensor, gamma: f64, lambda: f64) {
+        self.returns = gae(
+            &self.rewards,
+            &self.dones,
+            &self.values,
+            last_values,
+            gamma,
+            lambda,
+        );
+        let adv = &self.returns - &self.values;
+        self.advantages = (&adv - adv.mean(Kind::Float)) / (adv.std(true) + ADV_EPS);
+        self.step = 0;
+    }
+
+    /// `epochs × minibatches` minibatches of `⌊T·N / minibatches⌋` samples. Like rsl_rl, one
+    /// random permutation (from libtorch's seeded generator) serves every epoch.
+    pub fn minibatches(
+        &self,
+        minibatches: usize,
+        epochs: usize,
+    ) -> impl Iterator<Item = Batch> + '_ {
+        let batch = self.rewards.numel() as i64;
+        let size = batch / minibatches as i64;
+        let perm = Tensor::randperm(size * minibatches as i64, (Kind::Int64, Device::Cpu));
+        let flat = |t: &Tensor| t.flatten(0, 1);
+        let (obs, actions, values, advantages) = (
+            flat(&self.obs),
+            flat(&self.actions),
+            flat(&self.values),
+            flat(&self.advantages),
+        );
+        let (returns, log_probs, means, stds) = (
+            flat(&self.returns),
+            flat(&self.log_probs),
+            flat(&self.means),
+            flat(&self.stds),
+        );
+        (0..epochs)
+            .flat_map(move |_| 0..minibatches as i64)
+            .map(move |i| {
+                let idx = perm.narrow(0, i * size, size);
+                let pick = |t: &Tensor| t.index_select(0, &idx);
+                Batch {
+                    obs: pick(&obs),
+                    actions: pick(&actions),
+                    old_values: pick(&values),
+                    advantages: pick(&advantages),
+                    returns: pick(&returns),
+                    old_log_probs: pick(&log_probs),
+                    old_means: pick(&means),
+                    old_stds: pick(&stds),
+                }
+            })
+    }
+}
+
+/// Generalised advantage estimation over `[T, N]` tensors, returning the returns
+/// `A_t + V(s_t)`. `dones[t]` cuts the recursion after step `t`; time-outs are both done and
+/// bootstrapped through their reward (see [`bootstrap_time_outs`]), so a time-out keeps
+/// `γ V(s_final)` while a termination keeps nothing.
+pub fn gae(
+    rewards: &Tensor,
+    dones: &Tensor,
+    values: &Tensor,
+    last_values: &Tensor,
+    gamma: f64,
+    lambda: f64,
+) -> Tensor {
+    let steps = rewards.size()[0];
+    let returns = rewards.zeros_like();
+    let mut advantage = last_values.zeros_like();
+    for t in (0..steps).rev() {
+        let next_values = if t == steps - 1 {
+            last_values.shallow_clone()
+        } else {
+            values.get(t + 1)
+        };
+        let not_done = 1.0 - dones.get(t);
+        let delta = rewards.get(t) + &not_done * gamma * next_values - values.get(t);
+        advantage = delta + not_done * (gamma * lambda) * &advantage;
+        returns.get(t).copy_(&(&advantage + values.get(t)));
+    }
+    returns
+}
+
+/// rsl_rl's time-out bootstrap, with the value of the true final observation: the reward of
+/// each env in `env_ids` (`[K]` Int64) gains `γ · final_values` (`[K]`).
+pub fn bootstrap_time_outs(
+    rewards: &Tensor,
+    env_ids: &Tensor,
+    final_values: &Tensor,
+    gamma: f64,
+) -> Tensor {
+    rewards.index_add(0, env_ids, &(final_values * gamma))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn t2(rows: &[&[f32]]) -> Tensor {
+        let flat: Vec<f32> = rows.iter().flat_map(|r| r.iter().copied()).collect();
+        Tensor::from_slice(&flat).view([rows.len() as i64, rows[0].len() as i64])
+    }
+
+    fn close(a: &Tensor, b: &Tensor) -> bool {
+        f64::try_from((a - b).abs().max()).unwrap() < 1e-5
+    }
+
+    #[test]
+    fn gae_matches_hand_computation() {
+        // One env, three steps, no episode end; gamma 0.9, lambda 0.5.
+        // deltas: d2 = 1 + .9*4 - 3 = 1.6, d1 = 2 + .9*3 - 2 = 2.7, d0 = 0 + .9*2 - 1 = 0.8
+        // A2 = 1.6, A1 = 2.7 + .45*1.6 = 3.42, A0 = 0.8 + .45*3.42 = 2.339
+        let r = t2(&[&[0.0], &[2.0], &[1.0]]);
+        let v = t2(&[&[1.0], &[2.0], &[3.0]]);
+        let d = t2(&[&[0.0], &[0.0], &[0.0]]);
+        let ret = gae(&r, &d, &v, &Tensor::from_slice(&[4.0f32]), 0.9, 0.5);
+        assert!(close(&ret, &t2(&[&[3.339], &[5.42], &[4.6]])), "{ret}");
+    }
+
+    #[test]
+    fn termination_cuts_and_time_out_bootstraps() {
+        // Two envs, two steps; both episodes end at step 0 with reward 1, V(s0) = 0.5,
+        // V(s1) = 2 (next episode), last value 3. Env 0 terminates, env 1 times out with
+        // V(s_final) = 10. gamma 0.9, lambda 1.
+        let v = t2(&[&[0.5, 0.5], &[2.0, 2.0]]);
+        let d = t2(&[&[1.0, 1.0], &[0.0, 0.0]]);
+        let r0 = Tensor::from_slice(&[1.0f32, 1.0]);
+        let r0 = bootstrap_time_outs(
+            &r0,
+            &Tensor::from_slice(&[1i64]),
+            &Tensor::from_slice(&[10.0f32]),
+            0.9,
+        );
+        assert!(close(&r0, &Tensor::from_slice(&[1.0f32, 10.0])));
+        let r = Tensor::stack(&[r0, Tensor::from_slice(&[0.0f32, 0.0])], 0);
+        let ret = gae(&r, &d, &v, &Tensor::from_slice(&[3.0f32, 3.0]), 0.9, 1.0);
+        // Step 0 returns: terminated 1 (nothing beyond), timed out 1 + 0.9 * 10 = 10.
+        // Step 1 returns: 0 + 0.9 * 3 = 2.7 for both (the new episodes).
+        assert!(close(&ret, &t2(&[&[1.0, 10.0], &[2.7, 2.7]])), "{ret}");
+    }
+
+    #[test]
+    fn advantages_are_normalised_over_the_whole_batch() {
+        let mut s = RolloutStorage::new(2, 2, 1, 1);
+        for k in 0..2 {
+            let r = Tensor::from_slice(&[k as f32, 3.0 * k as f32]);
+            let z = Tensor::zeros([2], (Kind::Float, Device::Cpu));
+            let z2 = Tensor::zeros([2, 1], (Kind::Float, Device::Cpu));
+            s.add(&Transition {
+                obs: &z2,
+                actions: &z2,
+                rewards: &r,
+                dones: &z,
+                values: &z,
+                log_probs: &z,
+                means: &z2,
+                stds: &z2,
+            });
+        }
+        assert!(s.is_full());
+        s.compute_returns(&Tensor::zeros([2], (Kind::Float, Device::Cpu)), 0.9, 0.95);
+        assert!(s.advantages.mean(Kind::Float).double_value(&[]).abs() < 1e-6);
+        assert!((s.advantages.std(true).double_value(&[]) - 1.0).abs() < 1e-4);
+        let batches: Vec<Batch> = s.minibatches(2, 3).collect();
+        assert_eq!(batches.len(), 6);
+        assert!(batches.iter().all(|b| b.obs.size() == [2, 1]));
+    }
+}

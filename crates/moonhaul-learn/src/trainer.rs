@@ -1,0 +1,162 @@
+//! A training run on disk: the run folder, its resolved config, `metrics.csv`, plots,
+//! periodic checkpoints, resume, a clean stop, and the exported policy.
+//!
+//! ```text
+//! <run>/config.toml                         the resolved config (after --seed)
+//! <run>/metrics.csv                         one row per iteration
+//! <run>/return.png, <run>/entropy.png       learning curves
+//! <run>/checkpoints/iter_NNNNNN.safetensors checkpoints (see crate::checkpoint)
+//! <run>/policy.safetensors                  the actor as an onboard policy file
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::actor_critic::ActorCritic;
+use crate::checkpoint::{self, write_atomic};
+use crate::config::TrainConfig;
+use crate::export::export_policy;
+use crate::metrics::{MetricsLog, MetricsRow};
+use crate::plot::plot_curves;
+use crate::ppo::Ppo;
+use crate::runner::{Progress, Runner};
+use crate::task::{export_identity, make_env};
+use crate::LearnError;
+
+#[derive(Debug, Clone)]
+pub struct TrainOptions {
+    pub run_dir: PathBuf,
+    /// Checkpoint to continue from (written by a run of the same config).
+    pub resume: Option<PathBuf>,
+    /// Set (e.g. by a Ctrl-C handler) to stop after the current iteration, keeping a
+    /// checkpoint of it.
+    pub stop: Arc<AtomicBool>,
+}
+
+#[derive(Debug, Clone)]
+pub struct TrainSummary {
+    pub progress: Progress,
+    /// The last deterministic evaluation, if any ran.
+    pub eval_return: Option<f64>,
+    pub last_checkpoint: PathBuf,
+    pub policy: PathBuf,
+    /// Whether the run ended on the stop flag before `run.iterations`.
+    pub stopped: bool,
+    pub wall_s: f64,
+}
+
+pub fn checkpoint_path(run_dir: &Path, iteration: usize) -> PathBuf {
+    run_dir
+        .join("checkpoints")
+        .join(format!("iter_{iteration:06}.safetensors"))
+}
+
+/// Trains `config` into `options.run_dir`, calling `on_iteration` after every iteration.
+pub fn train(
+    config: &TrainConfig,
+    options: &TrainOptions,
+    mut on_iteration: impl FnMut(&MetricsRow),
+) -> Result<TrainSummary, LearnError> {
+    let start = Instant::now();
+    let dir = &options.run_dir;
+    let checkpoints = dir.join("checkpoints");
+    std::fs::create_dir_all(&checkpoints).map_err(LearnError::io(&checkpoints))?;
+    write_atomic(&dir.join("config.toml"), config.to_toml().as_bytes())?;
+
+    let threads = i32::try_from(config.run.threads).unwrap_or(i32::MAX);
+    tch::set_num_threads(threads);
+    tch::manual_seed(config.run.seed as i64);
+    let task = config.run.task;
+    let env = make_env(task, config.env.num_envs)?;
+    let eval_env = make_env(task, config.run.eval_episodes)?;
+    let (obs_dim, action_dim) = (env.obs_dim(), env.action_dim());
+    let policy = ActorCritic::new(obs_dim, action_dim, &config.policy);
+    let mut ppo = Ppo::new(
+        policy,
+        config.ppo.clone(),
+        config.env.steps_per_env,
+        config.env.num_envs,
+        obs_dim,
+        action_dim,
+    );
+    let progress = match &options.resume {
+        Some(path) => checkpoint::load(path, &mut ppo, task)?,
+        None => Progress::default(),
+    };
+    let mut metrics = MetricsLog::open(
+        &dir.join("metrics.csv"),
+        options.resume.as_ref().map(|_| progress.iteration),
+    )?;
+    let mut runner = Runner::new(config, env, eval_env, ppo, progress)?;
+
+    let mut eval_return = metrics.rows().iter().rev().find_map(|r| r.eval_return);
+    let mut last_checkpoint = None;
+    let mut stopped = false;
+    while runner.progress().iteration < config.run.iterations {
+        if options.stop.load(Ordering::SeqCst) {
+            stopped = true;
+            break;
+        }
+        let stats = runner.iterate()?;
+        let it = stats.progress.iteration;
+        let last = it == config.run.iterations;
+        let eval = if it % config.run.eval_interval == 0 || last {
+            Some(runner.evaluate()?)
+        } else {
+            None
+        };
+        eval_return = eval.or(eval_return);
+        let row = MetricsRow::new(&stats, eval);
+        metrics.append(row)?;
+        on_iteration(&row);
+        if eval.is_some() {
+            plot_curves(dir, metrics.rows())?;
+        }
+        if it % config.run.checkpoint_interval == 0 || last {
+            let path = checkpoint_path(dir, it);
+            checkpoint::save(&path, runner.ppo(), stats.progress, task)?;
+            last_checkpoint = Some(path);
+        }
+    }
+    let progress = runner.progress();
+    // A stop between periodic checkpoints still leaves one of the last completed iteration.
+    let last_checkpoint = match last_checkpoint {
+        Some(path) if path == checkpoint_path(dir, progress.iteration) => path,
+        _ => {
+            let path = checkpoint_path(dir, progress.iteration);
+            checkpoint::save(&path, runner.ppo(), progress, task)?;
+            path
+        }
+    };
+    plot_curves(dir, metrics.rows())?;
+
+    let (phase, mut extra) = export_identity(task);
+    extra.insert("created_by".into(), "moonhaul-train".into());
+    extra.insert("train_run".into(), config.run.name.clone());
+    extra.insert("seed".into(), config.run.seed.to_string());
+    extra.insert("iteration".into(), progress.iteration.to_string());
+    extra.insert("env_steps".into(), progress.env_steps.to_string());
+    if let Some(r) = eval_return {
+        extra.insert("eval_return".into(), r.to_string());
+    }
+    let env = runner.env();
+    let exported = export_policy(
+        runner.ppo().policy(),
+        phase,
+        &env.action_scale(),
+        &env.action_offset(),
+        extra,
+    )?;
+    let policy = dir.join("policy.safetensors");
+    exported.write_file(&policy)?;
+    Ok(TrainSummary {
+        progress,
+        eval_return,
+        last_checkpoint,
+        policy,
+        stopped,
+        wall_s: start.elapsed().as_secs_f64(),
+    })
+}
