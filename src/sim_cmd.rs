@@ -169,15 +169,14 @@ fn demo(payload: PayloadKind, seed: u64, randomize: bool, out: &Path, config: &P
     Ok(())
 }
 
-/// Writes `path` through `write` on a temporary sibling, then renames it into place, so a
-/// reader never sees a half-written file. The temporary keeps the extension (plotters picks
-/// the image format from it).
+/// Writes `path` whole or not at all ([`moonhaul_core::atomic_file`]).
 fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("out");
-    let tmp = path.with_file_name(format!(".tmp-{}-{name}", std::process::id()));
-    write(&tmp).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path)
-        .with_context(|| format!("cannot move {} to {}", tmp.display(), path.display()))
+    let context = || format!("cannot write {}", path.display());
+    moonhaul_core::atomic_file::write_with(
+        path,
+        |temp| write(temp).with_context(context),
+        |e| anyhow::Error::new(e).context(context()),
+    )
 }
 
 /// Two panels without text (no font is needed): payload height (m) on top, tilt (deg) below,

@@ -5,6 +5,7 @@
 //! the per-tick paths the onboard daemon runs at 50 Hz: the stacked metric, forward kinematics
 //! of a prepared chain and the policy MLP forward pass.
 //!
+//! - [`atomic_file`]: whole-or-nothing writes of every file the project produces.
 //! - [`se3`]: the paper's arm pose metric d_SE, the wheel metric, and SE(3) interpolation.
 //! - [`stacked`]: the stacked state Y of N units (one arm pose and one base position each),
 //!   its ℓ∞ metric d and interpolation.
@@ -12,6 +13,7 @@
 //! - [`kinematics`]: URDF kinematic trees, forward kinematics between any two links, limits.
 //! - [`policy`]: the onboard policy runtime (a pure-Rust MLP loaded from safetensors).
 
+pub mod atomic_file;
 pub mod kinematics;
 pub mod policy;
 pub mod se3;

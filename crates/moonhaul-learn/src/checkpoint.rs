@@ -12,7 +12,6 @@
 //! does), so it is reproducible but not bit-identical to an uninterrupted run.
 
 use std::collections::HashMap;
-use std::io::Write;
 use std::path::Path;
 
 use safetensors::tensor::{Dtype, TensorView};
@@ -28,25 +27,9 @@ use crate::LearnError;
 const FORMAT: &str = "moonhaul-checkpoint";
 const FORMAT_VERSION: &str = "1";
 
-/// Writes `bytes` to a temporary file beside `path`, syncs it and renames it over `path`, so
-/// readers see the old file or the new one, never a torn one.
+/// Writes `bytes` to `path` whole or not at all ([`moonhaul_core::atomic_file`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), LearnError> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let temp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let written = std::fs::File::create(&temp)
-        .and_then(|mut f| {
-            f.write_all(bytes)?;
-            f.sync_all()
-        })
-        .and_then(|()| std::fs::rename(&temp, path));
-    if written.is_err() {
-        // Best effort: the write error is the one worth reporting.
-        let _ = std::fs::remove_file(&temp);
-    }
-    written.map_err(LearnError::io(path))
+    moonhaul_core::atomic_file::write(path, bytes).map_err(LearnError::io(path))
 }
 
 /// A tensor's shape and little-endian F32 bytes.

@@ -87,14 +87,9 @@ fn draw(path: &Path, title: &str, y_desc: &str, series: &[Series]) -> Result<(),
         (y_min, y_max) = (-1.0, 1.0);
     }
     let pad = ((y_max - y_min) * 0.05).max(1e-3);
-    // plotters renders to a file named by its extension: draw to a temp `.png`, then rename.
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let temp = path.with_file_name(format!(".{name}.tmp.png"));
-    {
-        let root = BitMapBackend::new(&temp, SIZE_PX).into_drawing_area();
+    // plotters picks the image format from the extension, which the temporary keeps.
+    let draw_into = |temp: &Path| {
+        let root = BitMapBackend::new(temp, SIZE_PX).into_drawing_area();
         let e = |e: DrawingAreaErrorKind<_>| fail(e.to_string());
         root.fill(&WHITE).map_err(e)?;
         let mut chart = ChartBuilder::on(&root)
@@ -136,7 +131,7 @@ fn draw(path: &Path, title: &str, y_desc: &str, series: &[Series]) -> Result<(),
             .position(SeriesLabelPosition::LowerRight)
             .draw()
             .map_err(e)?;
-        root.present().map_err(e)?;
-    }
-    std::fs::rename(&temp, path).map_err(LearnError::io(path))
+        root.present().map_err(e)
+    };
+    moonhaul_core::atomic_file::write_with(path, draw_into, |source| LearnError::io(path)(source))
 }

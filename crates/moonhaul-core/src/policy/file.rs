@@ -1,9 +1,7 @@
 //! Reading and writing the safetensors policy file (format in the [module docs](super)).
 
 use std::borrow::Cow;
-use std::io::Write;
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use safetensors::tensor::{Dtype, SafeTensorError, View};
 use safetensors::SafeTensors;
@@ -76,45 +74,15 @@ impl Policy {
             .map_err(PolicyError::Serialize)
     }
 
-    /// Writes the policy file atomically: the bytes go to a hidden temporary file in the same
-    /// directory, are flushed to disk, and the file is renamed over `path`, so a reader (or a
-    /// robot booting after a crash) sees the old file or the new one, never a torn one.
+    /// Writes the policy file atomically ([`crate::atomic_file`]): a reader, or a robot booting
+    /// after a crash, sees the old file or the new one, never a torn one.
     pub fn write_file(&self, path: impl AsRef<Path>) -> Result<(), PolicyError> {
-        /// Distinguishes concurrent writers within one process.
-        static NEXT_TEMP: AtomicUsize = AtomicUsize::new(0);
-
         let path = path.as_ref();
-        let io_error = |source| PolicyError::Io {
+        let bytes = self.to_bytes()?;
+        crate::atomic_file::write(path, &bytes).map_err(|source| PolicyError::Io {
             path: path.to_path_buf(),
             source,
-        };
-        let bytes = self.to_bytes()?;
-        let file_name = path.file_name().ok_or_else(|| {
-            io_error(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                "path has no file name",
-            ))
-        })?;
-        let temp = path.with_file_name(format!(
-            ".{}.{}-{}.tmp",
-            file_name.to_string_lossy(),
-            std::process::id(),
-            NEXT_TEMP.fetch_add(1, Ordering::Relaxed)
-        ));
-        let written = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&temp)
-            .and_then(|mut file| {
-                file.write_all(&bytes)?;
-                file.sync_all()
-            })
-            .and_then(|()| std::fs::rename(&temp, path));
-        if written.is_err() {
-            // Best effort: the temp file may not exist, and the write error matters more.
-            let _ = std::fs::remove_file(&temp);
-        }
-        written.map_err(io_error)
+        })
     }
 }
 

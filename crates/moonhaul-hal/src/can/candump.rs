@@ -105,24 +105,17 @@ pub fn parse(text: &str) -> Result<Vec<LogEntry>, ParseError> {
         .collect()
 }
 
-/// Writes a log atomically: to a temporary file beside `path`, then renamed over it, so a
-/// reader never sees half a log.
+/// Writes a log whole or not at all ([`moonhaul_core::atomic_file`]): a reader never sees
+/// half a log.
 pub fn write_file(path: &Path, entries: &[LogEntry]) -> std::io::Result<()> {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".{}.partial", std::process::id()));
-    let partial = path.with_file_name(name);
-    let result = (|| {
-        let mut out = std::io::BufWriter::new(std::fs::File::create(&partial)?);
+    let write_log = |temp: &Path| {
+        let mut out = std::io::BufWriter::new(std::fs::File::create(temp)?);
         for entry in entries {
             writeln!(out, "{entry}")?;
         }
-        out.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        std::fs::rename(&partial, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&partial);
-    }
-    result
+        out.flush()
+    };
+    moonhaul_core::atomic_file::write_with(path, write_log, |e| e)
 }
 
 /// A bus decorator that logs every frame sent and received, stamped `epoch + bus time`.
