@@ -55,17 +55,9 @@ fn main() {
             previous,
             small,
         ),
-        (
-            "slightly clamped (short scan + bisection)",
-            previous,
-            slightly,
-        ),
-        ("strongly clamped (long scan + bisection)", previous, large),
-        (
-            "nothing admissible: hold after the full scan",
-            runaway,
-            runaway,
-        ),
+        ("slightly clamped (scan + bisection)", previous, slightly),
+        ("strongly clamped (scan + bisection)", previous, large),
+        ("nothing admissible: hold after the scan", runaway, runaway),
     ];
     println!("coordination tick for N = 2 (gate + agreement + clamp), {TICKS} ticks each:");
     for (name, previous, target) in scenarios {

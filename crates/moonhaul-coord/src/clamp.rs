@@ -12,11 +12,16 @@
 //!   FK(interpolated arm joints). Y_k is the same image of the sensed joints and base pose.
 //!   T(t) ∈ V_k iff d(X(t), Y_k) ≤ 1 with core's stacked metric d.
 //! - t_max = max{t : T(t) ∈ V_k}. t = 1 is tried first (the common case: one evaluation).
-//!   Otherwise d need not be monotone in t (e.g. a wheel velocity reversing sign), so t = j/M
-//!   (M = `search.scan_cells`) is scanned downward and the first admissible point's cell is
-//!   bisected to `search.bisection_tolerance`. The result is always admissible; it is maximal
-//!   unless an admissible stretch narrower than 1/M lies wholly between two inadmissible scan
-//!   points above it, in which case the clamp issues a smaller, still safe, step.
+//!   Otherwise d need not be monotone in t (a wheel velocity reversing sign, or a large joint
+//!   move whose end effector sweeps through V_k), so t = j/M (M = `search.scan_cells`) is
+//!   scanned downward; the first admissible scan point's cell is bisected to
+//!   `search.bisection_tolerance`. A cell whose two ends are inadmissible may still hide a
+//!   narrow admissible stretch: a Lipschitz bound on d along the path (from the commands'
+//!   joint and wheel increments, the arm's reach and the tolerances) discards every cell that
+//!   provably holds none, and a branch and bound searches the others, within
+//!   `search.max_evaluations` evaluations per tick. The result is always admissible; it can
+//!   fall short of the maximum only when that budget runs out, or by an admissible stretch
+//!   lying inside the bisected cell above its first crossing.
 //! - **Hold** when no t is admissible, or when the caller asks (safety stop σ, Idle, a pending
 //!   phase change): every arm is commanded to its sensed joint positions and every wheel to
 //!   zero velocity. Its task image is exactly Y_k (d = 0), so a hold is always admissible.
@@ -30,6 +35,13 @@ use moonhaul_core::stacked::{
 };
 use moonhaul_core::state::{UnitCommand, UnitState, WHEEL_JOINTS};
 use nalgebra::{Isometry3, Vector2};
+
+/// t and d(X(t), Y_k) at one point of the interpolation path.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    t: f64,
+    d: StackedDistance,
+}
 
 /// Why the clamp issued a hold instead of T(t_max).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -178,37 +190,107 @@ impl Clamp {
         if full.value <= 1.0 {
             return Ok(self.issue(input, 1.0, full, issued));
         }
+        let lipschitz = self.lipschitz(input);
+        let mut budget = self.search.max_evaluations;
         let cells = self.search.scan_cells;
-        let mut lowest = full;
+        let mut upper = Sample { t: 1.0, d: full };
         for j in (0..cells).rev() {
             let t = f64::from(j) / f64::from(cells);
-            let d = self.distance_at(input, t)?;
-            if d.value <= 1.0 {
-                let (t_max, d) = self.bisect(input, (t, d), f64::from(j + 1) / f64::from(cells))?;
-                return Ok(self.issue(input, t_max, d, issued));
+            let lower = Sample {
+                t,
+                d: self.distance_at(input, t)?,
+            };
+            let best = if lower.d.value <= 1.0 {
+                Some(self.bisect(input, lower, upper)?)
+            } else {
+                self.island_top(input, lower, upper, lipschitz, &mut budget)?
+            };
+            if let Some(best) = best {
+                return Ok(self.issue(input, best.t, best.d, issued));
             }
-            lowest = d;
+            upper = lower;
         }
-        Ok(self.hold(input, HoldReason::NoAdmissibleStep, Some(lowest), issued))
+        Ok(self.hold(input, HoldReason::NoAdmissibleStep, Some(upper.d), issued))
     }
 
-    /// Narrows [lo admissible, hi inadmissible] to the tolerance; returns lo and d there.
+    /// A Lipschitz constant of t ↦ d(X(t), Y_k) on [0, 1]: no subsystem's normalized distance
+    /// can change faster than its image moves divided by its tolerance.
+    fn lipschitz(&self, input: &ClampInput) -> f64 {
+        let tol = &self.tolerances;
+        let theta_max_rad = tol.arm_rotation_deg.to_radians();
+        let base_tol_m = tol.base_xy_m[0].min(tol.base_xy_m[1]);
+        input
+            .previous
+            .iter()
+            .zip(input.target)
+            .map(|(from, to)| {
+                let rates = self
+                    .model
+                    .image_rate_bounds(from, to, self.control_period_s);
+                (rates.arm_translation_m / tol.arm_translation_m)
+                    .max(rates.arm_rotation_rad / theta_max_rad)
+                    .max(rates.base_m / base_tol_m)
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// The top of the highest admissible stretch strictly inside a scan cell whose two ends
+    /// are inadmissible, if the Lipschitz bound lets one exist: an interior t can be admissible
+    /// only if t ≥ lo.t + (d(lo) − 1)/L and t ≤ hi.t − (d(hi) − 1)/L. Intervals whose window is
+    /// empty are discarded without evaluating d; others are split at the window's middle, upper
+    /// half first. Each split costs one evaluation from `budget`; an exhausted budget ends the
+    /// search (the cell is then treated as inadmissible: safe, possibly not maximal).
+    fn island_top(
+        &mut self,
+        input: &ClampInput,
+        lo: Sample,
+        hi: Sample,
+        lipschitz: f64,
+        budget: &mut u32,
+    ) -> Result<Option<Sample>, ClampError> {
+        let window_lo = lo.t + (lo.d.value - 1.0) / lipschitz;
+        let window_hi = hi.t - (hi.d.value - 1.0) / lipschitz;
+        // A path along which d is constant (L = 0) gives a NaN window: discarded too.
+        let window_open = window_lo.partial_cmp(&window_hi) == Some(std::cmp::Ordering::Less);
+        if !window_open || *budget == 0 {
+            return Ok(None);
+        }
+        *budget -= 1;
+        let t = 0.5 * (window_lo + window_hi);
+        let mid = Sample {
+            t,
+            d: self.distance_at(input, t)?,
+        };
+        if mid.d.value <= 1.0 {
+            return self.bisect(input, mid, hi).map(Some);
+        }
+        if let Some(found) = self.island_top(input, mid, hi, lipschitz, budget)? {
+            return Ok(Some(found));
+        }
+        self.island_top(input, lo, mid, lipschitz, budget)
+    }
+
+    /// Narrows [lo admissible, hi inadmissible] to `search.bisection_tolerance`; returns the
+    /// admissible end.
     fn bisect(
         &mut self,
         input: &ClampInput,
-        (mut lo, mut d_lo): (f64, StackedDistance),
-        mut hi: f64,
-    ) -> Result<(f64, StackedDistance), ClampError> {
-        while hi - lo > self.search.bisection_tolerance {
-            let mid = 0.5 * (lo + hi);
-            let d = self.distance_at(input, mid)?;
-            if d.value <= 1.0 {
-                (lo, d_lo) = (mid, d);
+        mut lo: Sample,
+        mut hi: Sample,
+    ) -> Result<Sample, ClampError> {
+        while hi.t - lo.t > self.search.bisection_tolerance {
+            let t = 0.5 * (lo.t + hi.t);
+            let mid = Sample {
+                t,
+                d: self.distance_at(input, t)?,
+            };
+            if mid.d.value <= 1.0 {
+                lo = mid;
             } else {
                 hi = mid;
             }
         }
-        Ok((lo, d_lo))
+        Ok(lo)
     }
 
     /// d(X(t), Y_k): the task-space image of T(t) against the sensed stacked state.

@@ -21,10 +21,12 @@ pub struct SyncConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SearchConfig {
-    /// Cells of the coarse downward scan over t ∈ [0, 1]; an admissible stretch narrower than
-    /// 1 / scan_cells between two inadmissible scan points can be missed.
+    /// Cells of the downward scan over t ∈ [0, 1].
     pub scan_cells: u32,
-    /// Width at which bisection of the bracketing cell stops.
+    /// Most evaluations of d the search for narrow admissible stretches inside inadmissible
+    /// scan cells may spend in one tick.
+    pub max_evaluations: u32,
+    /// Width at which bisection of the bracketing cell stops: t_max's resolution.
     pub bisection_tolerance: f64,
 }
 
@@ -32,6 +34,7 @@ impl Default for SearchConfig {
     fn default() -> Self {
         SearchConfig {
             scan_cells: 64,
+            max_evaluations: 200,
             bisection_tolerance: 1e-7,
         }
     }
@@ -261,6 +264,12 @@ impl Validate for SyncConfig {
         check(
             "search.scan_cells",
             self.search.scan_cells.into(),
+            "at least 1",
+            |v| v >= 1.0,
+        )?;
+        check(
+            "search.max_evaluations",
+            self.search.max_evaluations.into(),
             "at least 1",
             |v| v >= 1.0,
         )?;

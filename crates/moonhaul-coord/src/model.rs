@@ -9,7 +9,7 @@
 
 use crate::config::{self, ConfigError, UnitModelConfig};
 use moonhaul_core::kinematics::{Chain, KinematicTree, KinematicsError};
-use moonhaul_core::state::{PlanarPose, PlanarVelocity, ARM_JOINTS, WHEEL_JOINTS};
+use moonhaul_core::state::{PlanarPose, PlanarVelocity, UnitCommand, ARM_JOINTS, WHEEL_JOINTS};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::path::Path;
 
@@ -29,10 +29,24 @@ pub enum ModelError {
     Invalid(#[from] config::InvalidConfig),
 }
 
+/// Upper bounds on the change of one unit's task-space image per unit of the interpolation
+/// parameter t (see [`UnitModel::image_rate_bounds`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageRates {
+    /// Base planar position, m.
+    pub base_m: f64,
+    /// End-effector position, m.
+    pub arm_translation_m: f64,
+    /// End-effector orientation, rad.
+    pub arm_rotation_rad: f64,
+}
+
 /// The kinematics of one wheel–arm unit.
 #[derive(Debug, Clone)]
 pub struct UnitModel {
     arm: Chain,
+    /// [`Chain::reach_bound_m`] of `arm`, computed once.
+    arm_reach_m: f64,
     mount: Isometry3<f64>,
     wheel_radius_m: f64,
     wheel_track_m: f64,
@@ -67,6 +81,7 @@ impl UnitModel {
         let [x, y, z] = cfg.arm_mount_xyz_m;
         let [roll, pitch, yaw] = cfg.arm_mount_rpy_rad;
         Ok(UnitModel {
+            arm_reach_m: arm.reach_bound_m(),
             arm,
             mount: Isometry3::from_parts(
                 Translation3::new(x, y, z),
@@ -109,6 +124,38 @@ impl UnitModel {
             x_m: pose.x_m + chord_m * heading.cos(),
             y_m: pose.y_m + chord_m * heading.sin(),
             yaw_rad: pose.yaw_rad + turn_rad,
+        }
+    }
+
+    /// Bounds on how fast the task-space image of the interpolated command
+    /// T(t) = (1 − t)·`from` + t·`to` moves per unit of t, integrated over `dt_s` from any
+    /// sensed base pose.
+    ///
+    /// With v, ω linear in t, the base end point moves at most T·|Δv| + ½T²·max|v|·|Δω|
+    /// (the end point of an arc of length s shifts by at most s²/2 per unit curvature) and
+    /// turns T·|Δω|. The end effector adds that turn times its lever (mount offset + arm reach)
+    /// and Σⱼ|Δqⱼ|·max(reach, 1) from the arm joints; it rotates at most T·|Δω| + Σⱼ|Δqⱼ|.
+    pub fn image_rate_bounds(&self, from: &UnitCommand, to: &UnitCommand, dt_s: f64) -> ImageRates {
+        let (v0, v1) = (
+            self.base_velocity(&from.wheel_velocity_radps),
+            self.base_velocity(&to.wheel_velocity_radps),
+        );
+        let dv = (v1.forward_mps - v0.forward_mps).abs();
+        let dw = (v1.yaw_rate_radps - v0.yaw_rate_radps).abs();
+        let v_max = v0.forward_mps.abs().max(v1.forward_mps.abs());
+        let base_m = dt_s * dv + 0.5 * dt_s * dt_s * v_max * dw;
+        let yaw_rad = dt_s * dw;
+        let joints_rad: f64 = from
+            .arm_position_rad
+            .iter()
+            .zip(&to.arm_position_rad)
+            .map(|(a, b)| (b - a).abs())
+            .sum();
+        let lever_m = self.mount.translation.vector.norm() + self.arm_reach_m;
+        ImageRates {
+            base_m,
+            arm_translation_m: base_m + yaw_rad * lever_m + joints_rad * self.arm_reach_m.max(1.0),
+            arm_rotation_rad: yaw_rad + joints_rad,
         }
     }
 

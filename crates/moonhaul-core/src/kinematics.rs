@@ -477,6 +477,27 @@ impl Chain {
         self.joints.iter().map(|j| j.name.as_str())
     }
 
+    /// An upper bound, in metres, on the distance from the base frame or from any movable
+    /// joint's frame to the tip, for every joint value within the limits: the sum of the
+    /// lengths of the constant offsets, plus the travel of prismatic joints.
+    ///
+    /// A joint velocity q̇ⱼ therefore moves the tip by at most |q̇ⱼ|·max(reach, 1) (lever arm of
+    /// a rotation, or unit gain of a translation); the sync clamp uses this to bound how fast
+    /// the task-space image of a command can change.
+    pub fn reach_bound_m(&self) -> f64 {
+        let offsets: f64 = std::iter::once(&self.start)
+            .chain(self.joints.iter().map(|j| &j.after))
+            .map(|t| t.translation.vector.norm())
+            .sum();
+        let travel: f64 = self
+            .joints
+            .iter()
+            .filter(|j| j.motion.kind == MotionKind::Prismatic)
+            .map(|j| j.motion.limits.lower.abs().max(j.motion.limits.upper.abs()))
+            .sum();
+        offsets + travel
+    }
+
     /// Limits of the movable joints in chain order.
     pub fn limits(&self) -> impl ExactSizeIterator<Item = &JointLimits> {
         self.joints.iter().map(|j| &j.motion.limits)
@@ -548,6 +569,16 @@ mod tests {
             delta.translation.vector.norm() < 1e-12 && delta.rotation.angle() < 1e-12,
             "{a} != {b}"
         );
+    }
+
+    #[test]
+    fn reach_bound_dominates_every_tip_distance() {
+        let tree = tree(PLANAR).unwrap();
+        let chain = tree.chain("base", "hand").unwrap();
+        assert!((chain.reach_bound_m() - 0.8).abs() < 1e-12);
+        for q in [[0.0, 0.0], [1.0, -2.0], [-1.0, 3.0]] {
+            assert!(chain.forward(&q).unwrap().translation.vector.norm() <= 0.8 + 1e-12);
+        }
     }
 
     /// Planar arm in the xy plane: shoulder at the base origin, 0.5 m upper arm, 0.3 m forearm.

@@ -298,12 +298,22 @@ proptest! {
         let n = sensed.len();
         let mut issued = vec![UnitCommand::default(); n];
         let input = ClampInput { sensed: &sensed, previous: &previous, target: &target };
-        let report = clamp(n).step(&input, None, &mut issued).unwrap();
+        let mut clamp = clamp(n);
+        let report = clamp.step(&input, None, &mut issued).unwrap();
         let reported = report.distance.unwrap();
-        let admissible = |t: f64| d_of(&sensed, &path(&previous, &target, t)) <= 1.0;
 
-        // Dense reference scan: 2001 points (32x the clamp's scan), from the top.
-        let dense = (0..=2000).rev().map(|j| f64::from(j) / 2000.0).find(|&t| admissible(t));
+        // Dense reference scan: d at 2001 points of the path.
+        let grid: Vec<(f64, f64)> = (0..=2000)
+            .map(|j| f64::from(j) / 2000.0)
+            .map(|t| (t, d_of(&sensed, &path(&previous, &target, t))))
+            .collect();
+        let dense = grid.iter().rev().find(|(_, d)| *d <= 1.0).map(|(t, _)| *t);
+        // The search's pruning is sound only if its Lipschitz bound really bounds d's slope.
+        let lipschitz = clamp.lipschitz(&input);
+        for pair in grid.windows(2) {
+            let slope = (pair[1].1 - pair[0].1).abs() / (pair[1].0 - pair[0].0);
+            prop_assert!(slope <= lipschitz * (1.0 + 1e-9) + 1e-9, "slope {} > L {}", slope, lipschitz);
+        }
         match report.hold {
             Some(reason) => {
                 prop_assert_eq!(reason, HoldReason::NoAdmissibleStep);
