@@ -179,44 +179,59 @@ fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Res
     )
 }
 
-/// Two panels without text (no font is needed): payload height (m) on top, tilt (deg) below,
-/// light grid lines every 5 s, 0.1 m and 1 degree.
+/// The bundled ASCII subset of DejaVu Sans (`assets/fonts/`, licence beside it), so labels
+/// need no system font library.
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans-ascii.ttf");
+
+/// Two panels over mission time: payload height (m) on top, tilt (deg) below.
 fn plot(path: &Path, rows: &[Row]) -> Result<()> {
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let font_ok = *REGISTERED.get_or_init(|| {
+        plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_ok()
+    });
+    anyhow::ensure!(font_ok, "the bundled font is invalid");
     let root = BitMapBackend::new(path, (1200, 800)).into_drawing_area();
     root.fill(&WHITE)?;
     let panels = root.split_evenly((2, 1));
     let t_end = rows.last().map_or(1.0, |r| r.t_s).max(1.0);
-    // (values, grid spacing, colour) per panel.
+    // (title, axis label, values, smallest span, colour) per panel.
     let series = [
         (
+            "Payload height",
+            "height above ground (m)",
             rows.iter().map(|r| r.height_m).collect::<Vec<_>>(),
             0.1,
             BLUE,
         ),
-        (rows.iter().map(|r| r.tilt_deg).collect(), 1.0, RED),
+        (
+            "Payload tilt",
+            "tilt (deg)",
+            rows.iter().map(|r| r.tilt_deg).collect(),
+            1.0,
+            RED,
+        ),
     ];
-    for (panel, (values, grid, color)) in panels.iter().zip(series) {
+    for (panel, (title, y_desc, values, span, color)) in panels.iter().zip(series) {
         let (lo, hi) = values
             .iter()
-            .fold((0.0f64, grid), |(lo, hi): (f64, f64), v| {
+            .fold((0.0f64, span), |(lo, hi): (f64, f64), v| {
                 (lo.min(*v), hi.max(*v))
             });
-        let (lo, hi) = ((lo / grid).floor() * grid, (hi / grid).ceil() * grid);
+        let pad = 0.05 * (hi - lo);
         let mut chart = ChartBuilder::on(panel)
-            .margin(20)
-            .build_cartesian_2d(0.0..t_end, lo..hi)?;
-        let gray = RGBColor(220, 220, 220);
-        let mut t = 0.0;
-        while t <= t_end {
-            chart.draw_series(LineSeries::new([(t, lo), (t, hi)], gray))?;
-            t += 5.0;
-        }
-        let mut v = lo;
-        while v <= hi + 1e-9 {
-            let style = if v.abs() < 1e-9 { BLACK } else { gray };
-            chart.draw_series(LineSeries::new([(0.0, v), (t_end, v)], style))?;
-            v += grid;
-        }
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..t_end, (lo - pad)..(hi + pad))?;
+        chart
+            .configure_mesh()
+            .x_desc("mission time (s)")
+            .y_desc(y_desc)
+            .label_style(("sans-serif", 15))
+            .axis_desc_style(("sans-serif", 16))
+            .light_line_style(RGBColor(235, 235, 235))
+            .draw()?;
         chart.draw_series(LineSeries::new(
             rows.iter().zip(&values).map(|(r, v)| (r.t_s, *v)),
             color.stroke_width(2),

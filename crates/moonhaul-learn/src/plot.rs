@@ -1,7 +1,7 @@
 //! PNG learning curves (return and entropy against environment steps, the paper's training
 //! figure), redrawn from `metrics.csv`'s rows after each evaluation.
 //!
-//! Text uses a bundled ASCII subset of DejaVu Sans (`assets/`, license beside it) through
+//! Text uses a bundled ASCII subset of DejaVu Sans (`assets/fonts/`, license beside it) through
 //! plotters' `ab_glyph` backend, so no system font library is needed.
 
 use std::path::Path;
@@ -13,7 +13,7 @@ use plotters::style::{register_font, FontStyle};
 use crate::metrics::MetricsRow;
 use crate::LearnError;
 
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans-ascii.ttf");
+static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans-ascii.ttf");
 const SIZE_PX: (u32, u32) = (900, 540);
 
 /// One curve: its legend, colour, and points; `markers` draws dots (sparse series).
