@@ -22,8 +22,8 @@ const TORCH_VERSION: &str = "2.13.0";
 
 const USAGE: &str = "usage: cargo xtask <demo|test|setup|cargo ARGS...>
 
-  demo          run the main job: the moonhaul CLI on the bundled 7-DOF arm model and the
-                onboard per-tick benchmark (stacked metric, forward kinematics, policy MLP)
+  demo          run the main job: lift, transport and place a payload in simulation with
+                two wheel-arm units, and bring up a unit's CAN drives (emulated); see runs/demo/
   test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
   setup         only install libtorch (PyTorch from PyPI) into the project venv
   cargo ARGS    run any cargo command with libtorch configured, e.g.
@@ -52,8 +52,12 @@ fn main() -> ExitCode {
 }
 
 fn workspace_root() -> PathBuf {
-    // xtask/ lives directly under the workspace root.
-    Path::new(env!("CARGO_MANIFEST_DIR"))
+    // xtask/ lives directly under the workspace root. `cargo run` passes the manifest dir at
+    // run time too; prefer it, so a binary built from another checkout sharing the target
+    // directory still works on this one.
+    env::var_os("CARGO_MANIFEST_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")))
         .parent()
         .map(Path::to_path_buf)
         .unwrap_or_else(|| PathBuf::from("."))
@@ -130,36 +134,44 @@ fn test(extra: &[String]) -> Result<(), String> {
     )
 }
 
-/// The main job. For now: what the project can do end to end without a simulator — check the
-/// bundled 7-DOF arm model, compute its forward kinematics, and time the per-tick onboard math.
+/// The main job: the whole mission in simulation (scripted controller until the phase
+/// policies are trained), the unit model it runs on, and a unit's CAN start-up against
+/// emulated drives. Everything lands in `runs/demo/`.
 fn demo() -> Result<(), String> {
     let venv = setup()?;
-    let arm = "crates/moonhaul-core/tests/data/panda.urdf";
+    let out = workspace_root().join("runs").join("demo");
+    let out = out.to_string_lossy();
     let moonhaul = |args: &[&str]| {
         let mut all = vec!["run", "--quiet", "--release", "--package", "moonhaul", "--"];
         all.extend_from_slice(args);
         run(cargo_command(&venv).args(all))
     };
-    moonhaul(&["urdf", "check", arm])?;
+    moonhaul(&["urdf", "check", "assets/unit.urdf"])?;
     moonhaul(&[
-        "urdf",
-        "fk",
-        arm,
-        "--base",
-        "panda_link0",
-        "--tip",
-        "panda_grasptarget",
-        "--q",
-        "0.3,-0.5,0.2,-1.2,0.4,0.9,-0.1",
+        "sim",
+        "demo",
+        "--payload",
+        "box",
+        "--seed",
+        "1",
+        "--out",
+        &out,
     ])?;
-    run(cargo_command(&venv).args([
-        "bench",
-        "--quiet",
-        "--package",
-        "moonhaul-core",
-        "--bench",
-        "tick",
-    ]))
+    let can_log = format!("{out}/can.log");
+    moonhaul(&[
+        "can",
+        "emulate",
+        "--unit",
+        "configs/unit_can.toml",
+        "--seconds",
+        "2",
+        "--record",
+        &can_log,
+    ])?;
+    eprintln!(
+        "xtask: mission CSV and plot in {out}/ (demo.csv, demo.png), CAN traffic in {can_log}"
+    );
+    Ok(())
 }
 
 fn run(command: &mut Command) -> Result<(), String> {
