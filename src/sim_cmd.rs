@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use moonhaul_core::state::{Phase, UnitCommand};
 use moonhaul_sim::accuracy;
 use moonhaul_sim::scene::UNITS;
-use moonhaul_sim::scripted::{run_mission, MissionPlan, ScriptedController};
+use moonhaul_sim::scripted::{run_mission, ScriptedController};
 use moonhaul_sim::{BatchEnv, Env, EnvOptions, PayloadKind, SceneModel, SimConfig};
 use plotters::prelude::*;
 
@@ -103,7 +103,7 @@ fn demo(payload: PayloadKind, seed: u64, randomize: bool, out: &Path, config: &P
     };
     let mut env = Env::new(&scene, seed, options).context("cannot create the env")?;
     let mut rows = Vec::new();
-    let summary = run_mission(&scene, &mut env, MissionPlan::default(), |phase, s| {
+    let summary = run_mission(&scene, &mut env, scene.config.mission, |phase, s| {
         rows.push(Row {
             t_s: s.time_s,
             phase,
@@ -253,7 +253,7 @@ fn scripted_commands(scene: &SceneModel, steps: usize) -> Result<Vec<[UnitComman
         },
     )?;
     let mut state = env.state(scene);
-    let mut controller = ScriptedController::new(MissionPlan::default(), scene, &state)?;
+    let mut controller = ScriptedController::new(scene.config.mission, scene, &state)?;
     let mut commands = Vec::with_capacity(steps);
     for _ in 0..steps {
         let (_, command) = controller.command(scene, state.time_s, &state)?;

@@ -10,7 +10,7 @@ use moonhaul_core::state::Phase;
 use crate::config::PhysicsConfig;
 use crate::randomization::PayloadKind;
 use crate::scene::{Env, EnvOptions, SceneModel};
-use crate::scripted::{run_mission, MissionPlan, MissionSummary};
+use crate::scripted::{run_mission, MissionSummary};
 use crate::SimError;
 
 /// Differences between the configured and the reference solver on one mission.
@@ -83,7 +83,7 @@ fn trace(scene: &SceneModel) -> Result<Trace, SimError> {
     let mut env = Env::new(scene, 0, options)?;
     let weight_n =
         scene.payloads[&PayloadKind::Box].model.mass_kg() * scene.config.physics.gravity_mps2.abs();
-    let plan = MissionPlan::default();
+    let plan = scene.config.mission;
     let mut samples = Vec::new();
     let (mut force_sum, mut n) = (0.0, 0usize);
     let summary = run_mission(scene, &mut env, plan, |phase, s| {

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::randomization::Randomization;
+use crate::scripted::MissionPlan;
 use crate::SimError;
 
 /// Physics and control rates and the rapier solver settings.
@@ -132,6 +133,8 @@ pub struct SimConfig {
     pub grasp: GraspConfig,
     pub scene: SceneConfig,
     pub randomization: Randomization,
+    /// The scripted mission flown by `moonhaul sim demo` and replayed by `sim bench`.
+    pub mission: MissionPlan,
 }
 
 impl Default for SimConfig {
@@ -164,6 +167,7 @@ impl Default for SimConfig {
                 terrain_center_x_m: 1.0,
             },
             randomization: Randomization::default(),
+            mission: MissionPlan::default(),
         }
     }
 }
@@ -230,6 +234,13 @@ impl SimConfig {
         positive("scene.payload_friction", self.scene.payload_friction)?;
         positive("scene.terrain_size_m", self.scene.terrain_size_m)?;
         positive("scene.terrain_spacing_m", self.scene.terrain_spacing_m)?;
+        let m = &self.mission;
+        positive("mission.lift_height_m", m.lift_height_m)?;
+        positive("mission.lift_duration_s", m.lift_duration_s)?;
+        positive("mission.speed_mps", m.speed_mps)?;
+        positive("mission.accel_mps2", m.accel_mps2)?;
+        positive("mission.place_duration_s", m.place_duration_s)?;
+        positive("mission.touchdown_speed_mps", m.touchdown_speed_mps)?;
         self.randomization.validate()
     }
 

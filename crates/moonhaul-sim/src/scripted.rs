@@ -13,13 +13,16 @@
 use moonhaul_core::se3::rotation_angle;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, ARM_JOINTS};
 use nalgebra::{Isometry3, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::ik::{self, IkSettings};
 use crate::scene::{Env, EnvState, SceneModel, UNITS};
 use crate::SimError;
 
-/// Timing and geometry of the scripted mission.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Timing and geometry of the scripted mission: the `[mission]` section of
+/// `configs/sim.toml`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct MissionPlan {
     /// Time standing still before lifting, s.
     pub settle_s: f64,
