@@ -29,9 +29,6 @@ use crate::message::{
 use crate::GateConfig;
 use moonhaul_core::state::Phase;
 
-/// The default staleness bound, in control periods (issue 4).
-pub const DEFAULT_STALENESS_PERIODS: u32 = 3;
-
 /// Who this unit is and how its team runs; the daemon fills it from `configs/unit.toml`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TeamSettings {
