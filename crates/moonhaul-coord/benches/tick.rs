@@ -111,7 +111,7 @@ fn running_team() -> Team {
         team_size: 2,
         unit_index: 0,
         control_period_us: PERIOD_US,
-        staleness_periods: 3,
+        peer_staleness_periods: 3,
     };
     let mut team = match Team::new(settings, &GateConfig::default()) {
         Ok(team) => team,

@@ -169,10 +169,12 @@ pub enum InvalidConfig {
     Field(#[from] FieldError),
     #[error(transparent)]
     Tolerance(#[from] StackedError),
+    #[error(transparent)]
+    Team(#[from] crate::team::TeamError),
 }
 
 /// Checks a field: `ok(value)` or an error naming it.
-pub(crate) fn check(
+pub fn check(
     field: &'static str,
     value: f64,
     expected: &'static str,
@@ -189,7 +191,7 @@ pub(crate) fn check(
     }
 }
 
-pub(crate) fn positive(v: f64) -> bool {
+pub fn positive(v: f64) -> bool {
     v.is_finite() && v > 0.0
 }
 

@@ -462,7 +462,7 @@ mod tests {
             team_size: 3,
             unit_index: 0,
             control_period_us: PERIOD_US,
-            staleness_periods: 3,
+            peer_staleness_periods: 3,
         }
     }
 

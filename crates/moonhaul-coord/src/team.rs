@@ -39,7 +39,7 @@ pub struct TeamSettings {
     pub unit_index: usize,
     pub control_period_us: u64,
     /// A peer whose latest state is older than this many control periods stops every unit.
-    pub staleness_periods: u32,
+    pub peer_staleness_periods: u32,
 }
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -52,7 +52,7 @@ pub enum TeamError {
     EmptyName,
     #[error("control_period_us must be positive")]
     ZeroPeriod,
-    #[error("staleness_periods must be at least 1")]
+    #[error("peer_staleness_periods must be at least 1")]
     ZeroStaleness,
 }
 
@@ -60,7 +60,7 @@ impl TeamSettings {
     /// The staleness bound in µs.
     pub fn staleness_us(&self) -> u64 {
         self.control_period_us
-            .saturating_mul(self.staleness_periods.into())
+            .saturating_mul(self.peer_staleness_periods.into())
     }
 
     pub fn validate(&self) -> Result<(), TeamError> {
@@ -79,7 +79,7 @@ impl TeamSettings {
         if self.control_period_us == 0 {
             return Err(TeamError::ZeroPeriod);
         }
-        if self.staleness_periods == 0 {
+        if self.peer_staleness_periods == 0 {
             return Err(TeamError::ZeroStaleness);
         }
         Ok(())

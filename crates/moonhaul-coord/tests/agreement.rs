@@ -49,7 +49,7 @@ impl Sim {
                     team_size: n,
                     unit_index: i,
                     control_period_us: PERIOD_US,
-                    staleness_periods: STALENESS_PERIODS,
+                    peer_staleness_periods: STALENESS_PERIODS,
                 };
                 SimUnit {
                     validator: Validator::new(&settings),

@@ -75,7 +75,7 @@ fn gate_agreement_and_clamp_do_not_allocate_per_tick() {
         team_size: 2,
         unit_index: 0,
         control_period_us: PERIOD_US,
-        staleness_periods: 3,
+        peer_staleness_periods: 3,
     };
     let mut team = Team::new(settings, &GateConfig::default()).unwrap();
     let mut clamp = Clamp::new(model, &SyncConfig::default(), 0.02, 2).unwrap();

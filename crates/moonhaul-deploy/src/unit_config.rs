@@ -1,8 +1,10 @@
 //! A unit's daemon settings, read from `configs/unit.toml` (one file per robot, flashed with
 //! the daemon).
 
+use moonhaul_coord::config::{check, load, positive, ConfigError, InvalidConfig, Validate};
+use moonhaul_coord::TeamSettings;
 use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 /// `configs/unit.toml`.
@@ -21,89 +23,53 @@ pub struct UnitConfig {
     pub peer_staleness_periods: u32,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum UnitConfigError {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
-    Parse {
-        path: PathBuf,
-        source: Box<toml::de::Error>,
-    },
-    #[error("{path}: field {field}: {reason}")]
-    Invalid {
-        path: PathBuf,
-        field: &'static str,
-        reason: String,
-    },
+impl Validate for UnitConfig {
+    /// The rate here; team membership and staleness by [`TeamSettings::validate`], the one
+    /// check the coordination layer also relies on.
+    fn validate(&self) -> Result<(), InvalidConfig> {
+        check(
+            "control_rate_hz",
+            self.control_rate_hz,
+            "finite and > 0",
+            positive,
+        )?;
+        self.team_settings().validate()?;
+        Ok(())
+    }
 }
 
 impl UnitConfig {
     /// Reads and validates a unit config; errors name the file and the field.
-    pub fn from_file(path: &Path) -> Result<Self, UnitConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| UnitConfigError::Read {
-            path: path.to_owned(),
-            source,
-        })?;
-        let config: UnitConfig = toml::from_str(&text).map_err(|e| UnitConfigError::Parse {
-            path: path.to_owned(),
-            source: Box::new(e),
-        })?;
-        config
-            .validate()
-            .map_err(|(field, reason)| UnitConfigError::Invalid {
-                path: path.to_owned(),
-                field,
-                reason,
-            })?;
-        Ok(config)
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        load(path)
     }
 
-    fn validate(&self) -> Result<(), (&'static str, String)> {
-        if self.team_size == 0 {
-            return Err(("team_size", "a team needs at least one unit".into()));
+    /// What the coordination layer needs of this config.
+    pub fn team_settings(&self) -> TeamSettings {
+        TeamSettings {
+            team: self.team.clone(),
+            team_size: self.team_size,
+            unit_index: self.unit_index,
+            control_period_us: (1e6 / self.control_rate_hz).round() as u64,
+            peer_staleness_periods: self.peer_staleness_periods,
         }
-        if self.unit_index >= self.team_size {
-            return Err((
-                "unit_index",
-                format!(
-                    "{} is not below team_size {}",
-                    self.unit_index, self.team_size
-                ),
-            ));
-        }
-        if self.team.trim().is_empty() {
-            return Err(("team", "must not be empty".into()));
-        }
-        if !(self.control_rate_hz.is_finite() && self.control_rate_hz > 0.0) {
-            return Err((
-                "control_rate_hz",
-                format!("{} must be finite and > 0", self.control_rate_hz),
-            ));
-        }
-        if self.peer_staleness_periods == 0 {
-            return Err(("peer_staleness_periods", "must be at least 1".into()));
-        }
-        Ok(())
     }
 
     /// One control period.
     pub fn control_period(&self) -> Duration {
-        Duration::from_secs_f64(1.0 / self.control_rate_hz)
+        Duration::from_micros(self.team_settings().control_period_us)
     }
 
     /// Age beyond which a peer's state is stale.
     pub fn peer_staleness(&self) -> Duration {
-        self.control_period() * self.peer_staleness_periods
+        Duration::from_micros(self.team_settings().staleness_us())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     fn shipped() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/unit.toml")
