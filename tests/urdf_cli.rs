@@ -5,11 +5,11 @@ use std::process::{Command, Output};
 
 const PANDA: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
-    "/crates/moonhaul-core/tests/data/panda.urdf"
+    "/crates/core/tests/data/panda.urdf"
 );
 const FIXTURE: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
-    "/crates/moonhaul-core/tests/data/fk_reference.json"
+    "/crates/core/tests/data/fk_reference.json"
 );
 
 fn moonhaul(args: &[&str]) -> Output {

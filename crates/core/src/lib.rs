@@ -6,6 +6,7 @@
 //! of a prepared chain and the policy MLP forward pass.
 //!
 //! - [`atomic_file`]: whole-or-nothing writes of every file the project produces.
+//! - [`input`]: size-capped reads of every file that comes from outside.
 //! - [`se3`]: the paper's arm pose metric d_SE, the wheel metric, and SE(3) interpolation.
 //! - [`stacked`]: the stacked state Y of N units (one arm pose and one base position each),
 //!   its ℓ∞ metric d and interpolation.
@@ -14,6 +15,7 @@
 //! - [`policy`]: the onboard policy runtime (a pure-Rust MLP loaded from safetensors).
 
 pub mod atomic_file;
+pub mod input;
 pub mod kinematics;
 pub mod policy;
 pub mod se3;

@@ -9,7 +9,7 @@
 //!
 //! ```text
 //! python3 -m venv /tmp/fkvenv && /tmp/fkvenv/bin/pip install pin==4.1.0 pybullet==3.2.7 numpy
-//! /tmp/fkvenv/bin/python crates/moonhaul-core/tests/data/gen_fk_fixture.py
+//! /tmp/fkvenv/bin/python crates/core/tests/data/gen_fk_fixture.py
 //! ```
 //!
 //! `tests/data/panda.urdf` is pybullet_data's `franka_panda/panda.urdf`, byte for byte (see

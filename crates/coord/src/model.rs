@@ -242,7 +242,7 @@ pub(crate) mod tests {
     fn bad_models_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let urdf =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../moonhaul-core/tests/data/panda.urdf");
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../core/tests/data/panda.urdf");
         let base = format!(
             "urdf = {urdf:?}\narm_base_link = \"panda_link0\"\narm_mount_xyz_m = [0.1, 0.0, 0.3]\n\
              arm_mount_rpy_rad = [0.0, 0.0, 0.0]\nwheel_radius_m = 0.1\n"

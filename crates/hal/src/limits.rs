@@ -242,7 +242,7 @@ mod tests {
 
     const PANDA: &str = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../moonhaul-core/tests/data/panda.urdf"
+        "/../core/tests/data/panda.urdf"
     );
     const PERIOD: Duration = Duration::from_millis(20);
 

@@ -1,11 +1,11 @@
 """Generate fk_reference.json: Franka Panda forward kinematics from two independent libraries.
 
 The independent reference for moonhaul-core's URDF kinematics
-(crates/moonhaul-core/tests/kinematics_reference.rs). Reproduce from the repository root with:
+(crates/core/tests/kinematics_reference.rs). Reproduce from the repository root with:
 
     python3 -m venv /tmp/fkvenv
     /tmp/fkvenv/bin/pip install pin==4.1.0 pybullet==3.2.7 numpy
-    /tmp/fkvenv/bin/python crates/moonhaul-core/tests/data/gen_fk_fixture.py
+    /tmp/fkvenv/bin/python crates/core/tests/data/gen_fk_fixture.py
 
 The stored poses come from pinocchio (double precision, its own URDF parser). pybullet, whose
 pybullet_data package is where panda.urdf comes from, recomputes every pose as a cross-check;
