@@ -1,15 +1,27 @@
 //! `moonhaul urdf`: inspect URDF robot models with moonhaul-core's kinematics: validate and
 //! print the kinematic tree, or compute the pose of one link in another's frame.
 
+use std::collections::HashMap;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use moonhaul_core::kinematics::{Joint, KinematicTree, Link, MotionKind};
+use moonhaul_core::kinematics::urdf_rs;
+use moonhaul_core::kinematics::{
+    principal_moments, read_urdf, Joint, KinematicTree, Link, MotionKind,
+};
+
+/// Deepest tree level printed with its own indentation; deeper levels (a long chain) keep this
+/// indentation and print their depth instead, so output stays linear in the tree size.
+const MAX_INDENT_LEVELS: usize = 16;
 
 #[derive(clap::Subcommand)]
 pub enum UrdfCommand {
     /// Validate a URDF and print its kinematic tree (joint types, axes, limits), link masses,
-    /// total mass and DOF count. Exits non-zero, naming the offending element, if it is invalid.
+    /// inertias and geometry, total mass and DOF count. Checks structure and physics (finite
+    /// values, non-negative masses, positive limits and sizes, positive semi-definite inertias
+    /// obeying the triangle inequality). Exits non-zero, naming the file and the offending
+    /// element, if the URDF is invalid.
     Check {
         /// URDF file to read.
         file: PathBuf,
@@ -49,33 +61,183 @@ pub fn run(cmd: UrdfCommand) -> Result<()> {
     }
 }
 
-fn load(file: &Path) -> Result<KinematicTree> {
-    KinematicTree::from_file(file).with_context(|| format!("invalid URDF {}", file.display()))
+/// Reads and validates a URDF; every error names the file.
+fn load(file: &Path) -> Result<(urdf_rs::Robot, KinematicTree)> {
+    let robot = read_urdf(file)?;
+    let tree =
+        KinematicTree::from_robot(&robot).with_context(|| format!("URDF {}", file.display()))?;
+    Ok((robot, tree))
 }
 
 fn check(file: &Path) -> Result<()> {
-    let tree = load(file)?;
-    println!("robot \"{}\" ({})", tree.name(), file.display());
-    print_subtree(&tree, tree.root(), 0)?;
-    println!(
+    let (robot, tree) = load(file)?;
+    let mut out = BufWriter::new(std::io::stdout().lock());
+    print_check(&mut out, file, &robot, &tree)
+        .and_then(|()| out.flush().map_err(Into::into))
+        .context("cannot write to stdout")
+}
+
+fn print_check(
+    out: &mut impl Write,
+    file: &Path,
+    robot: &urdf_rs::Robot,
+    tree: &KinematicTree,
+) -> Result<()> {
+    writeln!(out, "robot \"{}\" ({})", tree.name(), file.display())?;
+    print_tree(out, robot, tree)?;
+    writeln!(
+        out,
         "{} links, total mass {:.3} kg; {} joints, {} DOF",
         tree.links().len(),
         tree.total_mass(),
         tree.joints().len(),
         tree.dof()
-    );
+    )?;
+    let inertials = robot.links.iter().filter(|l| has_inertial(l)).count();
+    let visuals: usize = robot.links.iter().map(|l| l.visual.len()).sum();
+    let collisions: usize = robot.links.iter().map(|l| l.collision.len()).sum();
+    writeln!(
+        out,
+        "checked: {inertials} inertials (finite, mass > 0, inertia positive semi-definite and \
+         within the triangle inequality), {} movable joints (finite limits, effort and velocity \
+         > 0, dynamics >= 0), {collisions} collision and {visuals} visual geometries (finite, \
+         sizes > 0)",
+        tree.dof()
+    )?;
     Ok(())
 }
 
-/// Prints `link` at `depth`, then each child joint followed by its child's subtree.
-fn print_subtree(tree: &KinematicTree, link: &Link, depth: usize) -> Result<()> {
-    let indent = 4 * depth;
-    println!("{:indent$}{} ({:.3} kg)", "", link.name, link.mass);
-    for (joint, child) in tree.children(&link.name)? {
-        println!("{:indent$}  joint {}", "", describe(joint));
-        print_subtree(tree, child, depth + 1)?;
+/// Prints the tree depth-first from the root, without recursion (a URDF may be a chain of
+/// thousands of links): each link with its mass, inertia and geometry, each joint before the
+/// subtree of its child.
+fn print_tree(out: &mut impl Write, robot: &urdf_rs::Robot, tree: &KinematicTree) -> Result<()> {
+    let urdf_links: HashMap<&str, &urdf_rs::Link> =
+        robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
+    let mut stack: Vec<(Option<&Joint>, &Link, usize)> = vec![(None, tree.root(), 0)];
+    while let Some((joint, link, depth)) = stack.pop() {
+        let indent = 4 * depth.min(MAX_INDENT_LEVELS);
+        if let Some(joint) = joint {
+            let indent = 4 * (depth - 1).min(MAX_INDENT_LEVELS);
+            writeln!(out, "{:indent$}  joint {}", "", describe(joint))?;
+        }
+        let level = if depth > MAX_INDENT_LEVELS {
+            format!("[depth {depth}] ")
+        } else {
+            String::new()
+        };
+        writeln!(
+            out,
+            "{:indent$}{level}{} ({:.3} kg)",
+            "", link.name, link.mass
+        )?;
+        if let Some(urdf_link) = urdf_links.get(link.name.as_str()) {
+            for line in physical_lines(urdf_link) {
+                writeln!(out, "{:indent$}  {line}", "")?;
+            }
+        }
+        let children: Vec<_> = tree.children(&link.name)?.collect();
+        for (joint, child) in children.into_iter().rev() {
+            stack.push((Some(joint), child, depth + 1));
+        }
     }
     Ok(())
+}
+
+/// Whether a link has an inertial to print: urdf_rs reads an absent `<inertial>` as all zeros.
+fn has_inertial(link: &urdf_rs::Link) -> bool {
+    let urdf_rs::Inertial {
+        origin,
+        mass,
+        inertia,
+    } = &link.inertial;
+    let i = inertia;
+    mass.value != 0.0
+        || [i.ixx, i.ixy, i.ixz, i.iyy, i.iyz, i.izz]
+            .iter()
+            .chain(origin.xyz.iter())
+            .chain(origin.rpy.iter())
+            .any(|&v| v != 0.0)
+}
+
+/// The checked physical data of a link: centre of mass and principal moments, geometry.
+fn physical_lines(link: &urdf_rs::Link) -> Vec<String> {
+    let mut lines = Vec::new();
+    if has_inertial(link) {
+        let com = link.inertial.origin.xyz;
+        let [a, b, c] = principal_moments(&link.inertial.inertia).map(num);
+        lines.push(format!(
+            "inertial: centre of mass ({}, {}, {}) m, principal moments {a}, {b}, {c} kg·m²",
+            num(com[0]),
+            num(com[1]),
+            num(com[2])
+        ));
+    }
+    for (kind, geometries) in [
+        (
+            "collision",
+            link.collision
+                .iter()
+                .map(|c| &c.geometry)
+                .collect::<Vec<_>>(),
+        ),
+        ("visual", link.visual.iter().map(|v| &v.geometry).collect()),
+    ] {
+        if !geometries.is_empty() {
+            let shapes: Vec<_> = geometries.into_iter().map(describe_geometry).collect();
+            lines.push(format!("{kind}: {}", shapes.join("; ")));
+        }
+    }
+    lines
+}
+
+fn describe_geometry(geometry: &urdf_rs::Geometry) -> String {
+    match geometry {
+        urdf_rs::Geometry::Box { size } => {
+            format!(
+                "box {} × {} × {} m",
+                num(size[0]),
+                num(size[1]),
+                num(size[2])
+            )
+        }
+        urdf_rs::Geometry::Sphere { radius } => format!("sphere radius {} m", num(*radius)),
+        urdf_rs::Geometry::Cylinder { radius, length } => format!(
+            "cylinder radius {} m, length {} m",
+            num(*radius),
+            num(*length)
+        ),
+        urdf_rs::Geometry::Capsule { radius, length } => format!(
+            "capsule radius {} m, length {} m",
+            num(*radius),
+            num(*length)
+        ),
+        urdf_rs::Geometry::Mesh { filename, scale } => match scale {
+            Some(s) => format!(
+                "mesh {filename} scaled ({}, {}, {})",
+                num(s[0]),
+                num(s[1]),
+                num(s[2])
+            ),
+            None => format!("mesh {filename}"),
+        },
+    }
+}
+
+/// A number to four significant digits, without trailing zeros.
+fn num(value: f64) -> String {
+    if value == 0.0 {
+        return "0".to_owned();
+    }
+    if !value.is_finite() {
+        return format!("{value}");
+    }
+    let decimals = (3 - value.abs().log10().floor() as i64).clamp(0, 15) as usize;
+    let text = format!("{value:.decimals$}");
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.').to_owned()
+    } else {
+        text
+    }
 }
 
 /// One line: name, type, axis and limits with their units.
@@ -110,7 +272,7 @@ fn describe(joint: &Joint) -> String {
 }
 
 fn fk(file: &Path, base: &str, tip: &str, q: &str, json: bool) -> Result<()> {
-    let tree = load(file)?;
+    let (_, tree) = load(file)?;
     let chain = tree
         .chain(base, tip)
         .with_context(|| format!("in URDF {}", file.display()))?;
@@ -132,17 +294,20 @@ fn fk(file: &Path, base: &str, tip: &str, q: &str, json: bool) -> Result<()> {
     let translation = [t.x, t.y, t.z];
     let rotation_xyzw = [r.i, r.j, r.k, r.w];
     if json {
-        println!(
+        outln!(
             r#"{{"translation":{},"rotation_xyzw":{}}}"#,
             serde_json::to_string(&translation)?,
             serde_json::to_string(&rotation_xyzw)?
-        );
+        )?;
     } else {
         let (roll, pitch, yaw) = pose.rotation.euler_angles();
-        println!("pose of {tip} in the {base} frame:");
-        println!("  translation (m):     {}", fmt_values(&translation));
-        println!("  quaternion (xyzw):   {}", fmt_values(&rotation_xyzw));
-        println!("  rpy (rad):           {}", fmt_values(&[roll, pitch, yaw]));
+        outln!(
+            "pose of {tip} in the {base} frame:\n  translation (m):     {}\n  \
+             quaternion (xyzw):   {}\n  rpy (rad):           {}",
+            fmt_values(&translation),
+            fmt_values(&rotation_xyzw),
+            fmt_values(&[roll, pitch, yaw])
+        )?;
     }
     Ok(())
 }

@@ -1,7 +1,10 @@
 //! End-to-end tests of `moonhaul urdf check` and `moonhaul urdf fk` on the Panda test arm and on
 //! malformed URDFs.
 
-use std::process::{Command, Output};
+use std::process::Output;
+
+mod common;
+use common::*;
 
 const PANDA: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
@@ -11,27 +14,6 @@ const FIXTURE: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/crates/core/tests/data/fk_reference.json"
 );
-
-fn moonhaul(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_moonhaul"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn stdout(output: &Output) -> String {
-    assert!(
-        output.status.success(),
-        "stderr: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout.clone()).unwrap()
-}
-
-fn stderr(output: &Output) -> String {
-    assert!(!output.status.success(), "unexpectedly succeeded");
-    String::from_utf8(output.stderr.clone()).unwrap()
-}
 
 fn fk(args: &[&str]) -> Output {
     let mut all = vec!["urdf", "fk", PANDA, "--base", "panda_link0"];
@@ -60,6 +42,15 @@ fn check_prints_tree_limits_masses_and_dof() {
         out.contains("13 links, total mass 17.960 kg; 12 joints, 9 DOF"),
         "{out}"
     );
+    // The physical data that was checked.
+    assert!(
+        out.contains(
+            "  inertial: centre of mass (0, 0, 0.05) m, principal moments 0.1, 0.1, 0.1 kg·m²"
+        ),
+        "{out}"
+    );
+    assert!(out.contains("  collision: mesh package://meshes/collision/link0.obj"));
+    assert!(out.contains("checked: 11 inertials"), "{out}");
 }
 
 #[test]
@@ -80,6 +71,77 @@ fn check_rejects_missing_link_and_cycle_naming_the_element() {
         <joint name="ba" type="fixed"><parent link="b"/><child link="a"/></joint>"#,
     ));
     assert!(err.contains("is on a cycle"), "{err}");
+}
+
+#[test]
+fn check_rejects_unphysical_urdfs_naming_file_and_element() {
+    let cases = [
+        (
+            r#"<link name="arm_link_3"><inertial><mass value="2"/>
+            <inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="-1"/></inertial></link>"#,
+            r#"link "arm_link_3": inertial inertia is not positive semi-definite"#,
+        ),
+        (
+            r#"<link name="arm_link_3"><inertial><mass value="2"/>
+            <inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="5"/></inertial></link>"#,
+            "triangle inequality",
+        ),
+        (
+            r#"<link name="a"/><link name="b"/>
+            <joint name="elbow" type="revolute"><parent link="a"/><child link="b"/>
+                <limit lower="-1" upper="1" effort="10" velocity="inf"/></joint>"#,
+            r#"joint "elbow": limit velocity is inf"#,
+        ),
+        (
+            r#"<link name="wheel"><collision><geometry><sphere radius="0"/></geometry></collision>
+            </link>"#,
+            r#"link "wheel": collision #1: sphere radius 0 m"#,
+        ),
+        (
+            &format!(r#"<link name="a">{}</link>"#, "<x>".repeat(100)),
+            "nests elements more than 64 deep",
+        ),
+    ];
+    for (body, needle) in cases {
+        let err = stderr(&check_urdf_text(body));
+        assert!(err.contains("bad.urdf") && err.contains(needle), "{err}");
+    }
+
+    let dir = tempfile::tempdir().unwrap();
+    let big = dir.path().join("huge.urdf");
+    std::fs::write(&big, " ".repeat(5 << 20)).unwrap();
+    let err = stderr(&moonhaul(&["urdf", "check", big.to_str().unwrap()]));
+    assert!(
+        err.contains("huge.urdf") && err.contains("larger than"),
+        "{err}"
+    );
+}
+
+#[test]
+fn check_prints_a_10k_link_chain_in_linear_output() {
+    const LINKS: usize = 10_000;
+    let mut urdf = String::from(r#"<robot name="chain"><link name="l0"/>"#);
+    for i in 1..LINKS {
+        urdf += &format!(
+            r#"<link name="l{i}"><inertial><mass value="1"/>
+            <inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+            <joint name="j{i}" type="revolute"><parent link="l{}"/><child link="l{i}"/>
+            <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>"#,
+            i - 1
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("chain.urdf");
+    std::fs::write(&path, urdf + "</robot>").unwrap();
+    let out = stdout(&moonhaul(&["urdf", "check", path.to_str().unwrap()]));
+    assert!(
+        out.contains("[depth 9999] l9999 (1.000 kg)"),
+        "{}",
+        &out[out.len() - 500..]
+    );
+    assert!(out.contains("10000 links, total mass 9999.000 kg; 9999 joints, 9999 DOF"));
+    // Indentation is capped: output grows linearly with the chain, not with its square.
+    assert!(out.len() < 1000 * LINKS, "{} bytes", out.len());
 }
 
 #[test]

@@ -13,6 +13,18 @@
 //!   still the joint's own URDF position. Joint values are ordered as the movable joints are
 //!   traversed from base to tip ([`Chain::joint_names`]), so `chain(tip, base)` takes them in
 //!   reverse order and yields the inverse pose.
+//!
+//! Reading is bounded and validation physical, so every loader of a URDF ([`read_urdf`],
+//! [`KinematicTree::from_file`], [`KinematicTree::from_robot`]) gets the same checks:
+//! - the file is read through [`crate::input::read_capped_text`] (at most
+//!   [`crate::input::MAX_URDF_BYTES`]), and its XML is scanned, before it is parsed, for at most
+//!   [`MAX_XML_DEPTH`] levels of element nesting and [`MAX_XML_ELEMENTS`] elements (the XML
+//!   parser and urdf_rs recurse once per level);
+//! - a tree has at most [`MAX_LINKS`] links and [`MAX_JOINTS`] joints, and nothing here
+//!   recurses along the kinematic tree, so a chain of that many links is fine;
+//! - movable joints have finite, positive effort and velocity limits, finite position limits
+//!   (revolute, prismatic) and finite, non-negative `<dynamics>`; links have plausible inertials
+//!   and geometry (see [`physical`] for exactly what is checked and why mass 0 is allowed).
 
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -20,18 +32,51 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 use thiserror::Error;
 
+use crate::input::{read_capped_text, InputError, MAX_URDF_BYTES};
+
+pub mod physical;
+pub use physical::principal_moments;
+/// The urdf_rs whose types [`read_urdf`] returns and [`KinematicTree::from_robot`] takes, so
+/// callers name the same version.
+pub use urdf_rs;
+
+/// Deepest element nesting accepted in URDF XML. Real URDFs nest 5 deep
+/// (`robot/link/visual/geometry/mesh`); the XML parser recurses once per level.
+pub const MAX_XML_DEPTH: usize = 64;
+/// Most XML elements accepted in one URDF: room for [`MAX_LINKS`] links of about 20 elements
+/// each (inertial, visual and collision with origins, and the joint to each link), while
+/// bounding the memory the parsed document takes.
+pub const MAX_XML_ELEMENTS: usize = 200_000;
+/// Most links accepted in one URDF (a unit has 18; a 10,000-link chain still loads quickly).
+pub const MAX_LINKS: usize = 10_000;
+/// Most joints accepted in one URDF (a tree of [`MAX_LINKS`] links has one fewer).
+pub const MAX_JOINTS: usize = 10_000;
+
 /// Why a URDF cannot be used, or a chain cannot be built or evaluated. Each variant names the
 /// offending element.
 #[derive(Debug, Error)]
 pub enum KinematicsError {
-    #[error("cannot load URDF file {}", path.display())]
+    /// The URDF file cannot be read: missing, not a regular file, too large, not UTF-8.
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// Any other error, in the URDF file at `path` ([`read_urdf`], [`KinematicTree::from_file`]).
+    #[error("URDF {}: {error}", path.display())]
     File {
         path: PathBuf,
-        #[source]
-        source: urdf_rs::UrdfError,
+        error: Box<KinematicsError>,
     },
-    #[error("cannot parse URDF")]
-    Parse(#[source] urdf_rs::UrdfError),
+    #[error("cannot parse URDF XML: {0}")]
+    Parse(urdf_rs::UrdfError),
+    #[error("URDF XML nests elements more than {max} deep (line {line})")]
+    XmlTooDeep { max: usize, line: usize },
+    #[error("URDF XML has more than {max} elements (line {line})")]
+    XmlTooManyElements { max: usize, line: usize },
+    #[error("URDF has {count} {what}, more than the {max} supported")]
+    TooMany {
+        what: &'static str,
+        count: usize,
+        max: usize,
+    },
     #[error("URDF has no links")]
     NoLinks,
     #[error("link \"{link}\" is defined more than once")]
@@ -64,6 +109,26 @@ pub enum KinematicsError {
         lower: f64,
         upper: f64,
     },
+    /// An `<inertial>` that no rigid body has (see [`physical`]).
+    #[error("link \"{link}\": inertial {reason}")]
+    BadInertial { link: String, reason: String },
+    /// A `<limit>` or `<dynamics>` value of a movable joint out of range; `field` names the
+    /// element and attribute, e.g. "limit effort".
+    #[error("joint \"{joint}\": {field} is {value}, expected {expected}")]
+    BadJointValue {
+        joint: String,
+        field: &'static str,
+        value: f64,
+        expected: &'static str,
+    },
+    /// A `<visual>` or `<collision>` with an impossible shape or a non-finite origin; `element`
+    /// is e.g. `collision #2` (1-based, in URDF order) or `visual "name"`.
+    #[error("link \"{link}\": {element}: {reason}")]
+    BadGeometry {
+        link: String,
+        element: String,
+        reason: String,
+    },
     #[error("unknown link \"{link}\"")]
     UnknownLink { link: String },
     #[error("expected {expected} joint values, got {got}")]
@@ -71,6 +136,172 @@ pub enum KinematicsError {
 }
 
 type Result<T, E = KinematicsError> = std::result::Result<T, E>;
+
+impl KinematicsError {
+    /// The error itself, without the [`KinematicsError::File`] that names its file.
+    pub fn without_file(&self) -> &KinematicsError {
+        match self {
+            KinematicsError::File { error, .. } => error,
+            other => other,
+        }
+    }
+
+    fn in_file(self, path: &Path) -> Self {
+        match self {
+            // Already names its file.
+            KinematicsError::Input(_) | KinematicsError::File { .. } => self,
+            error => KinematicsError::File {
+                path: path.to_owned(),
+                error: Box::new(error),
+            },
+        }
+    }
+}
+
+/// Reads a URDF file: size-capped ([`crate::input::MAX_URDF_BYTES`]), its XML shape-checked
+/// ([`MAX_XML_DEPTH`], [`MAX_XML_ELEMENTS`]) before it is parsed, then parsed by urdf_rs. Not
+/// yet validated: pass the result to [`KinematicTree::from_robot`] (which
+/// [`KinematicTree::from_file`] does). Errors name the file.
+pub fn read_urdf(path: &Path) -> Result<urdf_rs::Robot> {
+    let text = read_capped_text(path, MAX_URDF_BYTES)?;
+    parse_urdf(&text).map_err(|e| e.in_file(path))
+}
+
+/// Parses URDF XML text, with the XML caps of [`read_urdf`].
+pub fn parse_urdf(urdf: &str) -> Result<urdf_rs::Robot> {
+    check_xml_shape(urdf)?;
+    urdf_rs::read_from_string(urdf).map_err(KinematicsError::Parse)
+}
+
+/// Where [`check_xml_shape`] is in the XML: the states of urdf_rs's XML parser (RustyXML 0.3),
+/// whose reading of comments, CDATA, processing instructions, DOCTYPE and attribute values
+/// this follows byte for byte, so it never sees fewer elements or less nesting than the parser
+/// does (every delimiter is ASCII, so bytes and chars agree). urdf_rs re-serializes what
+/// RustyXML built and deserializes that with serde-xml-rs, which sees the same tree. Tied to
+/// that parser: the `too_deep_xml` tests pin its quirks, so an urdf-rs upgrade that changes
+/// them fails there.
+#[derive(Clone, Copy)]
+enum XmlScan {
+    Text,
+    TagOpened,
+    Pi { question: bool },
+    TagName,
+    CloseTagName,
+    InTag,
+    AttrName { space: bool },
+    ExpectDelimiter,
+    AttrValue(u8),
+    ExpectClose,
+    ExpectSpaceOrClose,
+    Exclamation,
+    CommentOpening,
+    Comment { dashes: u8 },
+    CommentEnd,
+    CdataOpening(usize),
+    Cdata { brackets: u8 },
+    Doctype(usize),
+}
+
+/// Rejects XML nested deeper than [`MAX_XML_DEPTH`] or with more than [`MAX_XML_ELEMENTS`]
+/// elements, in one linear pass and before anything recursive sees it. Stops at the first
+/// construct the parser rejects (it will report it).
+fn check_xml_shape(xml: &str) -> Result<()> {
+    use XmlScan::*;
+    let (mut depth, mut elements, mut line) = (0usize, 0usize, 1usize);
+    let mut state = Text;
+    for &c in xml.as_bytes() {
+        if c == b'\n' {
+            line += 1;
+        }
+        let space = matches!(c, b' ' | b'\t' | b'\r' | b'\n');
+        let mut start = false;
+        state = match (state, c) {
+            (Text, b'<') => TagOpened,
+            (Text, _) => Text,
+            (TagOpened, b'?') => Pi { question: false },
+            (TagOpened, b'!') => Exclamation,
+            (TagOpened, b'/') => CloseTagName,
+            // Any other character, even '>' or a space, starts the name.
+            (TagOpened, _) => TagName,
+            (Pi { question: true }, b'>') => Text,
+            (Pi { question }, _) => Pi {
+                question: question || c == b'?',
+            },
+            (TagName | InTag, b'/') => {
+                start = true;
+                ExpectClose
+            }
+            (TagName | InTag, b'>') => {
+                start = true;
+                Text
+            }
+            (TagName, _) if space => InTag,
+            (TagName, _) => TagName,
+            (CloseTagName, b'>') => {
+                depth = depth.saturating_sub(1);
+                Text
+            }
+            (CloseTagName, _) if space => {
+                depth = depth.saturating_sub(1);
+                ExpectSpaceOrClose
+            }
+            (CloseTagName, _) => CloseTagName,
+            (InTag, _) if space => InTag,
+            (InTag, _) => AttrName { space: false },
+            (AttrName { .. }, b'=') => ExpectDelimiter,
+            (AttrName { .. }, _) if space => AttrName { space: true },
+            (AttrName { space: false }, _) => AttrName { space: false },
+            (ExpectDelimiter, b'"' | b'\'') => AttrValue(c),
+            (ExpectDelimiter, _) if space => ExpectDelimiter,
+            (AttrValue(delim), _) if c == delim => InTag,
+            (AttrValue(delim), _) => AttrValue(delim),
+            (ExpectClose, b'>') => {
+                depth = depth.saturating_sub(1);
+                Text
+            }
+            (ExpectSpaceOrClose, b'>') => Text,
+            (ExpectSpaceOrClose, _) if space => ExpectSpaceOrClose,
+            (Exclamation, b'-') => CommentOpening,
+            (Exclamation, b'[') => CdataOpening(0),
+            (Exclamation, b'D') => Doctype(0),
+            (CommentOpening, b'-') => Comment { dashes: 0 },
+            (Comment { dashes: 1 }, b'-') => CommentEnd,
+            (Comment { .. }, b'-') => Comment { dashes: 1 },
+            (Comment { .. }, _) => Comment { dashes: 0 },
+            (CommentEnd, b'>') => Text,
+            (CdataOpening(5), b'[') => Cdata { brackets: 0 },
+            (CdataOpening(i), _) if i < 5 && c == b"CDATA"[i] => CdataOpening(i + 1),
+            (Cdata { brackets }, b']') => Cdata {
+                brackets: brackets.saturating_add(1),
+            },
+            (Cdata { brackets }, b'>') if brackets >= 2 => Text,
+            (Cdata { .. }, _) => Cdata { brackets: 0 },
+            (Doctype(i), _) if i < 6 && c == b"OCTYPE"[i] => Doctype(i + 1),
+            (Doctype(6), _) if space => Doctype(7),
+            (Doctype(7), b'>') => Text,
+            (Doctype(7), _) => Doctype(7),
+            // Everything else is a syntax error the parser reports.
+            _ => return Ok(()),
+        };
+        if start {
+            elements += 1;
+            depth += 1;
+            if depth > MAX_XML_DEPTH {
+                return Err(KinematicsError::XmlTooDeep {
+                    max: MAX_XML_DEPTH,
+                    line,
+                });
+            }
+            if elements > MAX_XML_ELEMENTS {
+                return Err(KinematicsError::XmlTooManyElements {
+                    max: MAX_XML_ELEMENTS,
+                    line,
+                });
+            }
+        }
+    }
+    Ok(())
+}
 
 /// A link: its name and inertial mass (kg, 0 when the URDF gives no `<inertial>`).
 #[derive(Debug, Clone, PartialEq)]
@@ -126,15 +357,45 @@ impl Motion {
             velocity,
             ..
         } = joint.limit;
+        let bad = |field, value, expected| KinematicsError::BadJointValue {
+            joint: joint.name.clone(),
+            field,
+            value,
+            expected,
+        };
+        const POSITIVE: &str = "a finite number > 0";
+        const NON_NEGATIVE: &str = "a finite number >= 0";
+        for (field, value) in [("limit effort", effort), ("limit velocity", velocity)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(bad(field, value, POSITIVE));
+            }
+        }
+        if let Some(dynamics) = &joint.dynamics {
+            for (field, value) in [
+                ("dynamics damping", dynamics.damping),
+                ("dynamics friction", dynamics.friction),
+            ] {
+                if !(value.is_finite() && value >= 0.0) {
+                    return Err(bad(field, value, NON_NEGATIVE));
+                }
+            }
+        }
         if kind == MotionKind::Continuous {
             // URDF continuous joints have no position limits, whatever `<limit>` says.
             (lower, upper) = (f64::NEG_INFINITY, f64::INFINITY);
-        } else if lower.is_nan() || upper.is_nan() || lower > upper {
-            return Err(KinematicsError::BadLimits {
-                joint: joint.name.clone(),
-                lower,
-                upper,
-            });
+        } else {
+            for (field, value) in [("limit lower", lower), ("limit upper", upper)] {
+                if !value.is_finite() {
+                    return Err(bad(field, value, "a finite number"));
+                }
+            }
+            if lower > upper {
+                return Err(KinematicsError::BadLimits {
+                    joint: joint.name.clone(),
+                    lower,
+                    upper,
+                });
+            }
         }
         Ok(Motion {
             kind,
@@ -158,6 +419,15 @@ impl Motion {
             MotionKind::Prismatic => Translation3::from(self.axis.into_inner() * q).into(),
         }
     }
+}
+
+/// A URDF `origin` (xyz, fixed-axis rpy) as an isometry: R = Rz(yaw)·Ry(pitch)·Rx(roll).
+pub fn urdf_pose(pose: &urdf_rs::Pose) -> Isometry3<f64> {
+    let [roll, pitch, yaw] = pose.rpy.0;
+    Isometry3::from_parts(
+        Translation3::from(Vector3::from(pose.xyz.0)),
+        UnitQuaternion::from_euler_angles(roll, pitch, yaw),
+    )
 }
 
 /// A validated joint.
@@ -201,10 +471,7 @@ impl Joint {
         if !xyz.iter().chain(&[roll, pitch, yaw]).all(|v| v.is_finite()) {
             return Err(KinematicsError::NonFiniteOrigin { joint: name() });
         }
-        let origin = Isometry3::from_parts(
-            Translation3::from(Vector3::from(xyz)),
-            UnitQuaternion::from_euler_angles(roll, pitch, yaw),
-        );
+        let origin = urdf_pose(&joint.origin);
         let motion = kind
             .map(|kind| Motion::from_urdf(kind, joint))
             .transpose()?;
@@ -234,23 +501,28 @@ pub struct KinematicTree {
 }
 
 impl KinematicTree {
-    /// Reads and validates a URDF file; parse errors name the file.
+    /// Reads ([`read_urdf`]) and validates a URDF file; every error names the file.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let robot = urdf_rs::read_file(path).map_err(|source| KinematicsError::File {
-            path: path.to_owned(),
-            source,
-        })?;
-        Self::from_robot(&robot)
+        Self::from_robot(&read_urdf(path)?).map_err(|e| e.in_file(path))
     }
 
-    /// Parses and validates URDF XML text.
+    /// Parses ([`parse_urdf`], with its XML caps) and validates URDF XML text.
     pub fn from_urdf_str(urdf: &str) -> Result<Self> {
-        Self::from_robot(&urdf_rs::read_from_string(urdf).map_err(KinematicsError::Parse)?)
+        Self::from_robot(&parse_urdf(urdf)?)
     }
 
-    /// Validates a parsed URDF.
+    /// Validates a parsed URDF: its structure (see [`KinematicTree`]), its size ([`MAX_LINKS`],
+    /// [`MAX_JOINTS`]) and its physics (see the module docs). Linear in the size of the URDF.
     pub fn from_robot(robot: &urdf_rs::Robot) -> Result<Self> {
+        for (what, count, max) in [
+            ("links", robot.links.len(), MAX_LINKS),
+            ("joints", robot.joints.len(), MAX_JOINTS),
+        ] {
+            if count > max {
+                return Err(KinematicsError::TooMany { what, count, max });
+            }
+        }
         let mut link_ids = HashMap::with_capacity(robot.links.len());
         let mut links = Vec::with_capacity(robot.links.len());
         for link in &robot.links {
@@ -259,6 +531,7 @@ impl KinematicTree {
                     link: link.name.clone(),
                 });
             }
+            physical::check_link(link)?;
             links.push(Link {
                 name: link.name.clone(),
                 mass: link.inertial.mass.value,
@@ -696,7 +969,8 @@ mod tests {
                     <inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>
             </link>
             <link name="b"/>
-            <joint name="j" type="continuous"><parent link="a"/><child link="b"/></joint>"#,
+            <joint name="j" type="continuous"><parent link="a"/><child link="b"/>
+                <limit effort="1" velocity="1"/></joint>"#,
         )
         .unwrap();
         let motion = tree.joint("j").unwrap().motion.as_ref().unwrap();
@@ -862,7 +1136,7 @@ mod tests {
         </joint>
         <joint name="rd" type="continuous">
             <origin xyz="-0.3 0 0.2" rpy="0.1 0 0"/><parent link="root"/><child link="d"/>
-            <axis xyz="-1 0 1"/>
+            <axis xyz="-1 0 1"/><limit effort="1" velocity="1"/>
         </joint>
         <joint name="de" type="revolute">
             <origin xyz="0 0 0.4" rpy="0 1 0"/><parent link="d"/><child link="e"/>

@@ -10,8 +10,8 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use moonhaul_core::kinematics::{JointLimits, KinematicTree, MotionKind};
-use nalgebra::{Isometry3, Matrix3, Translation3, Unit, UnitQuaternion, Vector3};
+use moonhaul_core::kinematics::{urdf_pose, JointLimits, KinematicTree, MotionKind};
+use nalgebra::{Isometry3, Matrix3, Unit, Vector3};
 
 use crate::SimError;
 
@@ -109,21 +109,14 @@ pub struct RobotModel {
     link_frames: HashMap<String, (usize, Isometry3<f64>)>,
 }
 
-fn urdf_pose(pose: &urdf_rs::Pose) -> Isometry3<f64> {
-    let [roll, pitch, yaw] = pose.rpy.0;
-    Isometry3::from_parts(
-        Translation3::from(Vector3::from(pose.xyz.0)),
-        UnitQuaternion::from_euler_angles(roll, pitch, yaw),
-    )
-}
-
 impl RobotModel {
     /// Reads a URDF; errors name the file and the link or joint at fault.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, SimError> {
         let path = path.as_ref().to_owned();
-        let robot = urdf_rs::read_file(&path).map_err(|e| SimError::Model {
+        // Size-capped, XML-shape-checked read; `without_file`: SimError::Model names the file.
+        let robot = moonhaul_core::kinematics::read_urdf(&path).map_err(|e| SimError::Model {
             path: path.clone(),
-            reason: e.to_string(),
+            reason: e.without_file().to_string(),
         })?;
         let tree = KinematicTree::from_robot(&robot).map_err(|e| SimError::Model {
             path: path.clone(),
