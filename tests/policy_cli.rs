@@ -131,7 +131,7 @@ fn corrupted_files_fail_naming_file_and_problem() {
     for (file, problem) in [
         (&truncated, "not a valid safetensors file"),
         (&idle, "the idle phase runs no policy"),
-        (&missing, "cannot access policy file"),
+        (&missing, "No such file"),
     ] {
         let out = inspect(&[], file);
         assert!(!out.status.success());

@@ -15,18 +15,18 @@ pub const MAX_URDF_BYTES: u64 = 4 << 20;
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 /// Largest policy file accepted, bytes ([256,128,64] actor ~0.2 MB; [1024]×4 ~13 MB).
 pub const MAX_POLICY_BYTES: u64 = 64 << 20;
+/// Largest training checkpoint accepted, bytes (actor, critic and Adam state of the widest
+/// network a config allows stay well under it).
+pub const MAX_CHECKPOINT_BYTES: u64 = 1 << 30;
 /// Largest candump log accepted for replay, bytes (~10 min of one unit's bus at 50 Hz).
 pub const MAX_CANDUMP_BYTES: u64 = 256 << 20;
 
 /// Why a file from outside could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum InputError {
-    #[error("cannot read {}: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: io::Error,
-    },
+    // The I/O error is part of the message, not a `source`, so a chain prints it once.
+    #[error("cannot read {}: {error}", path.display())]
+    Io { path: PathBuf, error: io::Error },
     #[error("{} is not a regular file", path.display())]
     NotAFile { path: PathBuf },
     #[error("{} is larger than {max_bytes} bytes, the limit for this kind of file", path.display())]
@@ -51,9 +51,9 @@ impl InputError {
 /// file before opening it (opening a FIFO would block), and never reads more than
 /// `max_bytes + 1` bytes, whatever the metadata said (the file may grow meanwhile).
 pub fn read_capped(path: &Path, max_bytes: u64) -> Result<Vec<u8>, InputError> {
-    let io_error = |source| InputError::Io {
+    let io_error = |error| InputError::Io {
         path: path.to_owned(),
-        source,
+        error,
     };
     let metadata = std::fs::metadata(path).map_err(io_error)?;
     if !metadata.is_file() {

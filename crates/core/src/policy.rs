@@ -55,6 +55,12 @@
 //! Metadata and tensor shapes must agree exactly; every violation has its own
 //! [`PolicyError`] variant naming the key or tensor (and expected vs found shape).
 //!
+//! Limits, checked before anything is allocated from a size the file declares: the file is a
+//! regular file of at most [`MAX_POLICY_BYTES`](crate::input::MAX_POLICY_BYTES), its header
+//! at most [`MAX_HEADER_BYTES`], `hidden_sizes` at most [`MAX_HIDDEN_LAYERS`] entries, and
+//! every width and the network's total at most [`MAX_VALUES`] f32 values (what a file of the
+//! maximum size can hold).
+//!
 //! # Example
 //!
 //! ```no_run
@@ -76,7 +82,10 @@ mod metadata;
 mod network;
 
 pub use error::PolicyError;
-pub use metadata::{Activation, PolicyMetadata, FORMAT_NAME, FORMAT_VERSION};
+pub use metadata::{
+    Activation, PolicyMetadata, FORMAT_NAME, FORMAT_VERSION, MAX_HEADER_BYTES, MAX_HIDDEN_LAYERS,
+    MAX_VALUES,
+};
 pub use network::{ActionAffine, Linear, ObsNormalizer, Policy, PolicyScratch, Tensor};
 
 #[cfg(test)]

@@ -1,19 +1,15 @@
 //! PNG learning curves (return and entropy against environment steps, the paper's training
 //! figure), redrawn from `metrics.csv`'s rows after each evaluation.
 //!
-//! Text uses a bundled ASCII subset of DejaVu Sans (`assets/fonts/`, license beside it) through
-//! plotters' `ab_glyph` backend, so no system font library is needed.
+//! Text uses the bundled font of [`moonhaul_core::plot_font`].
 
 use std::path::Path;
-use std::sync::OnceLock;
 
 use plotters::prelude::*;
-use plotters::style::{register_font, FontStyle};
 
 use crate::metrics::MetricsRow;
 use crate::LearnError;
 
-static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans-ascii.ttf");
 const SIZE_PX: (u32, u32) = (900, 540);
 
 /// One curve: its legend, colour, and points; `markers` draws dots (sparse series).
@@ -24,7 +20,8 @@ struct Series {
     markers: bool,
 }
 
-/// Writes `return.png` and `entropy.png` into `dir`.
+/// Writes `return.png` and `entropy.png` into `dir`, as one group
+/// ([`moonhaul_core::atomic_file::Group`]): a reader never sees a new plot beside an old one.
 pub fn plot_curves(dir: &Path, rows: &[MetricsRow]) -> Result<(), LearnError> {
     let x = |r: &MetricsRow| r.env_steps as f64;
     let returns = vec![
@@ -47,35 +44,45 @@ pub fn plot_curves(dir: &Path, rows: &[MetricsRow]) -> Result<(), LearnError> {
             markers: true,
         },
     ];
-    draw(
-        &dir.join("return.png"),
-        "Episode return",
-        "return",
-        &returns,
-    )?;
     let entropy = vec![Series {
         label: "policy entropy",
         color: RGBColor(44, 160, 44),
         points: rows.iter().map(|r| (x(r), r.entropy)).collect(),
         markers: false,
     }];
-    draw(
-        &dir.join("entropy.png"),
-        "Policy entropy",
-        "entropy (nats)",
-        &entropy,
-    )
+    let mut plots = moonhaul_core::atomic_file::Group::new(|path: &Path, e: std::io::Error| {
+        LearnError::io(path)(e)
+    });
+    let return_png = dir.join("return.png");
+    plots.stage(&return_png, |temp| {
+        draw(&return_png, temp, "Episode return", "return", &returns)
+    })?;
+    let entropy_png = dir.join("entropy.png");
+    plots.stage(&entropy_png, |temp| {
+        draw(
+            &entropy_png,
+            temp,
+            "Policy entropy",
+            "entropy (nats)",
+            &entropy,
+        )
+    })?;
+    plots.publish()
 }
 
-fn draw(path: &Path, title: &str, y_desc: &str, series: &[Series]) -> Result<(), LearnError> {
+/// Draws `series` into the file `temp`, which stands in for `path` (the name errors give).
+fn draw(
+    path: &Path,
+    temp: &Path,
+    title: &str,
+    y_desc: &str,
+    series: &[Series],
+) -> Result<(), LearnError> {
     let fail = |reason: String| LearnError::Plot {
         path: path.to_path_buf(),
         reason,
     };
-    static REGISTERED: OnceLock<bool> = OnceLock::new();
-    if !*REGISTERED.get_or_init(|| register_font("sans-serif", FontStyle::Normal, FONT).is_ok()) {
-        return Err(fail("bundled font is invalid".into()));
-    }
+    moonhaul_core::plot_font::register().map_err(|e| fail(e.into()))?;
     let all = series.iter().flat_map(|s| s.points.iter());
     let (mut x_max, mut y_min, mut y_max) = (1.0f64, f64::INFINITY, f64::NEG_INFINITY);
     for &(x, y) in all {
@@ -88,50 +95,47 @@ fn draw(path: &Path, title: &str, y_desc: &str, series: &[Series]) -> Result<(),
     }
     let pad = ((y_max - y_min) * 0.05).max(1e-3);
     // plotters picks the image format from the extension, which the temporary keeps.
-    let draw_into = |temp: &Path| {
-        let root = BitMapBackend::new(temp, SIZE_PX).into_drawing_area();
-        let e = |e: DrawingAreaErrorKind<_>| fail(e.to_string());
-        root.fill(&WHITE).map_err(e)?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 26))
-            .margin(16)
-            .x_label_area_size(50)
-            .y_label_area_size(80)
-            .build_cartesian_2d(0.0..x_max, (y_min - pad)..(y_max + pad))
-            .map_err(e)?;
+    let root = BitMapBackend::new(temp, SIZE_PX).into_drawing_area();
+    let e = |e: DrawingAreaErrorKind<_>| fail(e.to_string());
+    root.fill(&WHITE).map_err(e)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (moonhaul_core::plot_font::FAMILY, 26))
+        .margin(16)
+        .x_label_area_size(50)
+        .y_label_area_size(80)
+        .build_cartesian_2d(0.0..x_max, (y_min - pad)..(y_max + pad))
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc("environment steps")
+        .y_desc(y_desc)
+        .label_style((moonhaul_core::plot_font::FAMILY, 15))
+        .draw()
+        .map_err(e)?;
+    for s in series {
+        let color = s.color;
         chart
-            .configure_mesh()
-            .x_desc("environment steps")
-            .y_desc(y_desc)
-            .label_style(("sans-serif", 15))
-            .draw()
-            .map_err(e)?;
-        for s in series {
-            let color = s.color;
-            chart
-                .draw_series(LineSeries::new(
-                    s.points.iter().copied(),
-                    color.stroke_width(2),
-                ))
-                .map_err(e)?
-                .label(s.label)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-                });
-            if s.markers {
-                let dots = s.points.iter().map(|&p| Circle::new(p, 3, color.filled()));
-                chart.draw_series(dots).map_err(e)?;
-            }
+            .draw_series(LineSeries::new(
+                s.points.iter().copied(),
+                color.stroke_width(2),
+            ))
+            .map_err(e)?
+            .label(s.label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+            });
+        if s.markers {
+            let dots = s.points.iter().map(|&p| Circle::new(p, 3, color.filled()));
+            chart.draw_series(dots).map_err(e)?;
         }
-        chart
-            .configure_series_labels()
-            .label_font(("sans-serif", 15))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::LowerRight)
-            .draw()
-            .map_err(e)?;
-        root.present().map_err(e)
-    };
-    moonhaul_core::atomic_file::write_with(path, draw_into, |source| LearnError::io(path)(source))
+    }
+    chart
+        .configure_series_labels()
+        .label_font((moonhaul_core::plot_font::FAMILY, 15))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(e)?;
+    root.present().map_err(e)
 }

@@ -4,19 +4,45 @@
 
 use std::path::PathBuf;
 
+use safetensors::SafeTensorError;
+
+use crate::input::InputError;
+
 /// Why a policy could not be loaded, built, written or evaluated.
 #[derive(Debug, thiserror::Error)]
 pub enum PolicyError {
-    /// Reading or writing the file itself failed.
-    #[error("cannot access policy file {}", path.display())]
+    /// Writing the file failed (its target is not a regular file, the folder is missing, ...).
+    #[error("cannot write policy file {}", path.display())]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    /// The bytes are not a well-formed safetensors container (garbage, truncated, bad header).
+    /// Reading the file failed: it is missing, not a regular file (a directory, a FIFO, a
+    /// device) or larger than [`MAX_POLICY_BYTES`](crate::input::MAX_POLICY_BYTES). The
+    /// message names the path.
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// The bytes are not a well-formed safetensors container (garbage, truncated, bad header,
+    /// a tensor whose offsets disagree with its shape or lie outside the file).
     #[error("not a valid safetensors file")]
-    NotSafetensors(#[source] safetensors::SafeTensorError),
+    NotSafetensors(#[source] SafeTensorError),
+    /// The header length in the first 8 bytes exceeds
+    /// [`MAX_HEADER_BYTES`](super::MAX_HEADER_BYTES); refused before the header is parsed.
+    #[error("safetensors header declares {declared} bytes, more than the {max_bytes} a policy file may have")]
+    HeaderTooLarge { declared: u64, max_bytes: u64 },
+    /// A tensor's shape has more elements than memory can address (the product of its
+    /// dimensions times 4 bytes overflows). safetensors detects this before allocating but
+    /// does not say which tensor.
+    #[error(
+        "a tensor's shape overflows the address space (product of its dimensions × element size)"
+    )]
+    ShapeOverflow,
+    /// [`Policy::to_bytes`](super::Policy::to_bytes) would produce a file the reader refuses.
+    #[error(
+        "the policy file would be {bytes} bytes, more than the {max_bytes} a policy file may have"
+    )]
+    TooLarge { bytes: u64, max_bytes: u64 },
     /// Serializing the tensors into a safetensors container failed.
     #[error("cannot serialize policy to safetensors")]
     Serialize(#[source] safetensors::SafeTensorError),
@@ -72,4 +98,14 @@ pub enum PolicyError {
     /// The network produced a NaN or infinite action entry.
     #[error("action[{index}] came out non-finite")]
     NonFiniteAction { index: usize },
+}
+
+impl PolicyError {
+    /// A safetensors parse failure, with the failures that have their own variant split out.
+    pub(super) fn parse(error: SafeTensorError) -> Self {
+        match error {
+            SafeTensorError::ValidationOverflow => PolicyError::ShapeOverflow,
+            other => PolicyError::NotSafetensors(other),
+        }
+    }
 }

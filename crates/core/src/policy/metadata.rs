@@ -5,12 +5,30 @@ use std::collections::{BTreeMap, HashMap};
 use safetensors::SafeTensors;
 
 use super::PolicyError;
+use crate::input::MAX_POLICY_BYTES;
 use crate::state::Phase;
 
 /// Value of the `format` key: marks a safetensors file as a moonhaul policy.
 pub const FORMAT_NAME: &str = "moonhaul-policy";
 /// The format version this build reads and writes (`format_version` key).
 pub const FORMAT_VERSION: u32 = 1;
+
+/// Largest safetensors header (the JSON between the 8-byte length and the tensor data) a
+/// policy file may declare, bytes. A real one is ~1 kB; the cap is checked on the length
+/// field, before the header is parsed, so a hostile header cannot make the JSON parser
+/// allocate much (safetensors alone allows 100 MB).
+pub const MAX_HEADER_BYTES: u64 = 1 << 20;
+/// Most hidden layers `hidden_sizes` may list (the paper's networks have 3); checked before
+/// the list is parsed.
+pub const MAX_HIDDEN_LAYERS: usize = 64;
+/// Most f32 values a policy may have — weights, biases, normalizer and action map together:
+/// what a file of [`MAX_POLICY_BYTES`] can hold. Every width (`obs_dim`, `action_dim`, each
+/// hidden size) and the network's total are checked against it from the metadata alone,
+/// before anything is allocated for the network or a caller sizes buffers from the metadata.
+pub const MAX_VALUES: usize = (MAX_POLICY_BYTES / 4) as usize;
+
+/// Longest metadata value echoed in an error message, characters.
+const MAX_ECHOED_CHARS: usize = 64;
 
 const KEY_FORMAT: &str = "format";
 const KEY_FORMAT_VERSION: &str = "format_version";
@@ -73,8 +91,11 @@ pub struct PolicyMetadata {
 
 impl PolicyMetadata {
     /// Parses and validates the metadata of a policy file's bytes without touching its tensors.
+    /// Every size it declares is bounded ([`MAX_HEADER_BYTES`], [`MAX_HIDDEN_LAYERS`],
+    /// [`MAX_VALUES`]), so a caller may allocate from it.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, PolicyError> {
-        let (_, header) = SafeTensors::read_metadata(bytes).map_err(PolicyError::NotSafetensors)?;
+        check_header_len(bytes)?;
+        let (_, header) = SafeTensors::read_metadata(bytes).map_err(PolicyError::parse)?;
         let empty = HashMap::new();
         Self::from_map(header.metadata().as_ref().unwrap_or(&empty))
     }
@@ -112,8 +133,11 @@ impl PolicyMetadata {
             .parse::<Phase>()
             .map_err(|e| bad(KEY_PHASE, phase_str, e.to_string()))?;
         let hidden_str = get(KEY_HIDDEN_SIZES)?;
+        let hidden_count = hidden_str.split(',').count();
         let hidden_sizes = if hidden_str.trim().is_empty() {
             Vec::new()
+        } else if hidden_count > MAX_HIDDEN_LAYERS {
+            return Err(too_many_layers(hidden_str, hidden_count));
         } else {
             hidden_str
                 .split(',')
@@ -196,11 +220,56 @@ impl PolicyMetadata {
             }
         }
         if self.hidden_sizes.contains(&0) {
-            let joined: Vec<String> = self.hidden_sizes.iter().map(usize::to_string).collect();
             return Err(bad(
                 KEY_HIDDEN_SIZES,
-                &joined.join(","),
+                &joined(&self.hidden_sizes),
                 "every hidden size must be positive".into(),
+            ));
+        }
+        if self.hidden_sizes.len() > MAX_HIDDEN_LAYERS {
+            return Err(too_many_layers(
+                &joined(&self.hidden_sizes),
+                self.hidden_sizes.len(),
+            ));
+        }
+        for (key, dim) in [
+            (KEY_OBS_DIM, self.obs_dim),
+            (KEY_ACTION_DIM, self.action_dim),
+        ]
+        .into_iter()
+        .chain(self.hidden_sizes.iter().map(|&h| (KEY_HIDDEN_SIZES, h)))
+        {
+            if dim > MAX_VALUES {
+                let value = if key == KEY_HIDDEN_SIZES {
+                    joined(&self.hidden_sizes)
+                } else {
+                    dim.to_string()
+                };
+                return Err(bad(
+                    key,
+                    &value,
+                    format!(
+                        "width {dim} exceeds {MAX_VALUES}, the most values a policy file may hold"
+                    ),
+                ));
+            }
+        }
+        let sizes = self.layer_sizes();
+        if value_count(&sizes).is_none_or(|n| n > MAX_VALUES) {
+            // Name the key that makes the network big: the hidden layers if there are any.
+            let (key, value) = if !self.hidden_sizes.is_empty() {
+                (KEY_HIDDEN_SIZES, joined(&self.hidden_sizes))
+            } else if self.obs_dim >= self.action_dim {
+                (KEY_OBS_DIM, self.obs_dim.to_string())
+            } else {
+                (KEY_ACTION_DIM, self.action_dim.to_string())
+            };
+            return Err(bad(
+                key,
+                &value,
+                format!(
+                    "layer sizes {sizes:?} need more than {MAX_VALUES} values, the most a policy file may hold"
+                ),
             ));
         }
         if let Some(clip) = self.obs_clip {
@@ -227,10 +296,58 @@ impl PolicyMetadata {
     }
 }
 
+/// Refuses a header over [`MAX_HEADER_BYTES`] before safetensors parses it. A length the
+/// bytes cannot hold (garbage, a truncated file) is left to safetensors, which refuses it
+/// without parsing anything ([`PolicyError::NotSafetensors`]).
+pub(super) fn check_header_len(bytes: &[u8]) -> Result<(), PolicyError> {
+    let present = bytes.len().saturating_sub(8) as u64;
+    match bytes.first_chunk::<8>().map(|n| u64::from_le_bytes(*n)) {
+        Some(declared) if declared > MAX_HEADER_BYTES && declared <= present => {
+            Err(PolicyError::HeaderTooLarge {
+                declared,
+                max_bytes: MAX_HEADER_BYTES,
+            })
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Values a network of these layer sizes holds: every layer's weight and bias, plus the
+/// normalizer (2 × first) and the action map (2 × last). `None` on overflow.
+fn value_count(sizes: &[usize]) -> Option<usize> {
+    let (&first, &last) = (sizes.first()?, sizes.last()?);
+    sizes
+        .windows(2)
+        .try_fold(0usize, |n, io| {
+            n.checked_add(io[0].checked_mul(io[1])?.checked_add(io[1])?)
+        })?
+        .checked_add(first.checked_mul(2)?)?
+        .checked_add(last.checked_mul(2)?)
+}
+
+fn joined(sizes: &[usize]) -> String {
+    let parts: Vec<String> = sizes.iter().map(usize::to_string).collect();
+    parts.join(",")
+}
+
+fn too_many_layers(value: &str, count: usize) -> PolicyError {
+    bad(
+        KEY_HIDDEN_SIZES,
+        value,
+        format!("{count} hidden layers, more than the {MAX_HIDDEN_LAYERS} a policy may have"),
+    )
+}
+
+/// A [`PolicyError::BadMetadata`]; a value longer than [`MAX_ECHOED_CHARS`] is shortened, so
+/// a hostile file cannot make an error message megabytes long.
 fn bad(key: &str, value: &str, reason: String) -> PolicyError {
+    let value = match value.char_indices().nth(MAX_ECHOED_CHARS) {
+        Some((end, _)) => format!("{}… ({} bytes)", &value[..end], value.len()),
+        None => value.to_owned(),
+    };
     PolicyError::BadMetadata {
         key: key.to_owned(),
-        value: value.to_owned(),
+        value,
         reason,
     }
 }

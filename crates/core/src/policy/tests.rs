@@ -2,11 +2,13 @@
 //! crafted bad file (or bad call) per error variant.
 
 use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
 
 use proptest::prelude::*;
 use safetensors::tensor::{Dtype, TensorView};
 
 use super::*;
+use crate::input::{InputError, MAX_POLICY_BYTES};
 use crate::state::Phase;
 
 /// obs 2 → hidden 2 → action 1, numbers chosen so one hidden unit goes negative through ELU.
@@ -121,7 +123,7 @@ impl RawFile {
         bytes[4 * index..4 * index + 4].copy_from_slice(&value.to_le_bytes());
     }
 
-    fn load(&self) -> Result<Policy, PolicyError> {
+    fn bytes(&self) -> Vec<u8> {
         let views: Vec<_> = self
             .tensors
             .iter()
@@ -129,7 +131,11 @@ impl RawFile {
                 (name, TensorView::new(*dtype, shape.clone(), bytes).unwrap())
             })
             .collect();
-        Policy::from_bytes(&safetensors::serialize(views, Some(self.metadata.clone())).unwrap())
+        safetensors::serialize(views, Some(self.metadata.clone())).unwrap()
+    }
+
+    fn load(&self) -> Result<Policy, PolicyError> {
+        Policy::from_bytes(&self.bytes())
     }
 
     fn load_with_metadata(key: &str, value: Option<&str>) -> Result<Policy, PolicyError> {
@@ -282,11 +288,204 @@ fn garbage_and_truncated_bytes_are_not_safetensors() {
 }
 
 #[test]
-fn missing_file_is_io_error_with_path() {
+fn missing_file_is_input_error_with_path() {
     let err = Policy::from_file("/nonexistent/lift.safetensors").unwrap_err();
-    assert!(matches!(&err, PolicyError::Io { path, .. } if path.ends_with("lift.safetensors")));
+    assert!(
+        matches!(&err, PolicyError::Input(InputError::Io { path, .. }) if path.ends_with("lift.safetensors")),
+        "{err}"
+    );
     assert!(
         err.to_string().contains("/nonexistent/lift.safetensors"),
+        "{err}"
+    );
+}
+
+#[test]
+fn non_regular_file_is_refused_unread() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("lift.safetensors");
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    // A FIFO would block a plain read forever; a directory or device is no policy either.
+    for path in [fifo.as_path(), dir.path(), Path::new("/dev/zero")] {
+        let err = Policy::from_file(path).unwrap_err();
+        assert!(
+            matches!(&err, PolicyError::Input(InputError::NotAFile { path: p }) if p == path),
+            "{}: {err}",
+            path.display()
+        );
+        assert!(
+            err.to_string().contains(&path.display().to_string()),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn oversized_file_is_refused_unread() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lift.safetensors");
+    // Sparse: takes no disk space, and is never read.
+    std::fs::File::create(&path)
+        .unwrap()
+        .set_len(MAX_POLICY_BYTES + 1)
+        .unwrap();
+    let err = Policy::from_file(&path).unwrap_err();
+    assert!(
+        matches!(&err, PolicyError::Input(InputError::TooLarge { max_bytes, .. }) if *max_bytes == MAX_POLICY_BYTES),
+        "{err}"
+    );
+}
+
+/// A safetensors container written by hand, so the header can say what the library's
+/// serializer would refuse to write.
+fn hand_made(header: &str, data: &[u8]) -> Vec<u8> {
+    let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend_from_slice(data);
+    bytes
+}
+
+/// The tiny policy's metadata as a JSON object, for [`hand_made`] headers.
+fn tiny_metadata_json() -> String {
+    let metadata = RawFile::tiny().metadata;
+    let pairs: Vec<String> = metadata
+        .iter()
+        .map(|(k, v)| format!("{k:?}:{v:?}"))
+        .collect();
+    format!("{{{}}}", pairs.join(","))
+}
+
+#[test]
+fn overflowing_shape_is_refused_before_allocating() {
+    // 2^62 × 8 elements overflows usize: safetensors' own check, surfaced as its own variant.
+    let header = format!(
+        r#"{{"__metadata__":{},"actor.0.weight":{{"dtype":"F32","shape":[4611686018427387904,8],"data_offsets":[0,0]}}}}"#,
+        tiny_metadata_json()
+    );
+    for result in [
+        Policy::from_bytes(&hand_made(&header, &[])).map(|_| ()),
+        PolicyMetadata::from_bytes(&hand_made(&header, &[])).map(|_| ()),
+    ] {
+        let err = result.unwrap_err();
+        assert!(matches!(err, PolicyError::ShapeOverflow), "{err}");
+    }
+}
+
+#[test]
+fn huge_shape_without_its_data_is_not_safetensors() {
+    // 10^12 floats declared, none present: safetensors checks offsets against shape and file.
+    let header = format!(
+        r#"{{"__metadata__":{},"obs_norm.mean":{{"dtype":"F32","shape":[1000000000000],"data_offsets":[0,8]}}}}"#,
+        tiny_metadata_json()
+    );
+    let err = Policy::from_bytes(&hand_made(&header, &[0; 8])).unwrap_err();
+    assert!(matches!(err, PolicyError::NotSafetensors(_)), "{err}");
+}
+
+#[test]
+fn huge_dimension_beside_a_zero_is_shape_mismatch() {
+    // [0, 10^18] holds no element, so safetensors accepts it; the metadata check names it.
+    let mut raw = RawFile::tiny();
+    raw.tensors.insert(
+        "actor.0.weight".into(),
+        (Dtype::F32, vec![0, 1_000_000_000_000_000_000], vec![]),
+    );
+    let err = raw.load().unwrap_err();
+    assert!(
+        matches!(&err, PolicyError::ShapeMismatch { name, found, .. }
+            if name == "actor.0.weight" && found == &[0, 1_000_000_000_000_000_000]),
+        "{err}"
+    );
+}
+
+#[test]
+fn oversized_header_is_refused_before_parsing() {
+    // A header of 1 MiB + 1 byte (whitespace after an empty object: valid JSON).
+    let mut header = String::from("{}");
+    header.extend(std::iter::repeat_n(' ', MAX_HEADER_BYTES as usize - 1));
+    let bytes = hand_made(&header, &[]);
+    for result in [
+        Policy::from_bytes(&bytes).map(|_| ()),
+        PolicyMetadata::from_bytes(&bytes).map(|_| ()),
+    ] {
+        let err = result.unwrap_err();
+        assert!(
+            matches!(err, PolicyError::HeaderTooLarge { declared, .. } if declared == MAX_HEADER_BYTES + 1),
+            "{err}"
+        );
+    }
+    // The writer refuses what the reader would: here, huge free-form metadata.
+    let mut policy_metadata = tiny(None).metadata().clone();
+    policy_metadata
+        .extra
+        .insert("notes".into(), "x".repeat(MAX_HEADER_BYTES as usize));
+    let good = tiny(None);
+    let big = Policy::new(
+        policy_metadata,
+        good.layers().to_vec(),
+        good.obs_normalizer().clone(),
+        good.action_affine().clone(),
+    )
+    .unwrap();
+    let err = big.to_bytes().unwrap_err();
+    assert!(matches!(err, PolicyError::HeaderTooLarge { .. }), "{err}");
+}
+
+#[test]
+fn huge_declared_dims_are_refused_from_metadata_alone() {
+    let huge = "1000000000000"; // 10^12: would be 4 TB of floats
+    let many_layers = vec!["1"; MAX_HIDDEN_LAYERS + 1].join(",");
+    let wide = format!("{MAX_VALUES},1"); // fits alone, not with its neighbours
+    for (key, value) in [
+        ("obs_dim", huge),
+        ("action_dim", huge),
+        ("hidden_sizes", huge),
+        ("hidden_sizes", "64,1000000000000,64"),
+        ("hidden_sizes", "4000000,4000000"), // each fine, 1.6e13 weights together
+        ("hidden_sizes", wide.as_str()),
+        ("hidden_sizes", many_layers.as_str()),
+        ("obs_dim", "18446744073709551615"), // usize::MAX on 64-bit
+    ] {
+        let mut raw = RawFile::tiny();
+        raw.metadata.insert(key.to_owned(), value.to_owned());
+        let bytes = raw.bytes();
+        // Refused by the metadata reader alone, so a caller sizing buffers from it is safe...
+        for result in [
+            PolicyMetadata::from_bytes(&bytes).map(|_| ()),
+            Policy::from_bytes(&bytes).map(|_| ()),
+        ] {
+            let err = result.unwrap_err();
+            assert!(
+                matches!(&err, PolicyError::BadMetadata { key: k, .. } if k == key),
+                "{key}={value}: {err}"
+            );
+        }
+    }
+    // ...and the message never echoes a megabyte of metadata.
+    let long = vec!["1"; 100_000].join(",");
+    let err = RawFile::load_with_metadata("hidden_sizes", Some(&long)).unwrap_err();
+    assert!(err.to_string().len() < 400, "{err}");
+    assert!(err.to_string().contains("100000 hidden layers"), "{err}");
+}
+
+#[test]
+fn hand_built_policy_obeys_the_same_bounds() {
+    let good = tiny(None);
+    let mut metadata = good.metadata().clone();
+    metadata.hidden_sizes = vec![1; MAX_HIDDEN_LAYERS + 1];
+    let err = Policy::new(
+        metadata,
+        good.layers().to_vec(),
+        good.obs_normalizer().clone(),
+        good.action_affine().clone(),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&err, PolicyError::BadMetadata { key, .. } if key == "hidden_sizes"),
         "{err}"
     );
 }
