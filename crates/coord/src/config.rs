@@ -1,17 +1,18 @@
-//! The coordination layer's settings: `configs/sync.toml` (clamp), `configs/gate.toml` (phase
-//! gate and team agreement) and a unit-model file (the robot's arm and wheel module).
-//!
-//! Sync and gate settings default to the paper's values (or, where the paper gives none, to the
-//! values `configs/gate.toml` justifies); the unit model is robot-specific and has no defaults.
+//! The coordination layer's settings: `configs/sync.toml` (clamp) and `configs/gate.toml`
+//! (phase gate and team agreement), read by core's one loader ([`moonhaul_core::config`]):
+//! every key required, the shipped files hold the paper's values (or, where the paper gives
+//! none, the values their comments justify).
 
-use moonhaul_core::stacked::{StackedError, SyncTolerances};
-use serde::de::DeserializeOwned;
+use moonhaul_core::config::{self, count, in_range, positive, section, FieldError, Validate};
+use moonhaul_core::stacked::SyncTolerances;
 use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// `configs/sync.toml`. Missing keys take the paper's values.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+pub use moonhaul_core::config::ConfigError;
+
+/// `configs/sync.toml`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SyncConfig {
     pub tolerances: SyncTolerances,
     pub search: SearchConfig,
@@ -19,7 +20,7 @@ pub struct SyncConfig {
 
 /// How the clamp searches t_max (see `configs/sync.toml`).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 pub struct SearchConfig {
     /// Cells of the downward scan over t ∈ [0, 1].
     pub scan_cells: u32,
@@ -30,19 +31,9 @@ pub struct SearchConfig {
     pub bisection_tolerance: f64,
 }
 
-impl Default for SearchConfig {
-    fn default() -> Self {
-        SearchConfig {
-            scan_cells: 64,
-            max_evaluations: 200,
-            bisection_tolerance: 1e-7,
-        }
-    }
-}
-
 /// `configs/gate.toml`: the measured events of the phase gate and the agreement window.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct GateConfig {
     pub lift: LiftConfig,
     pub transport: TransportConfig,
@@ -52,7 +43,7 @@ pub struct GateConfig {
 
 /// Lift → Transport when payload height ≥ h_min.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 pub struct LiftConfig {
     /// h_min, m above the ground.
     pub payload_height_min_m: f64,
@@ -61,19 +52,9 @@ pub struct LiftConfig {
     pub debounce_ticks: u32,
 }
 
-impl Default for LiftConfig {
-    fn default() -> Self {
-        LiftConfig {
-            payload_height_min_m: 0.27,
-            hysteresis_m: 0.01,
-            debounce_ticks: 10,
-        }
-    }
-}
-
 /// Transport → Place when the payload's distance to the goal ≤ τ_place.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 pub struct TransportConfig {
     /// τ_place, m (horizontal distance of the payload to its goal).
     pub goal_distance_max_m: f64,
@@ -82,19 +63,9 @@ pub struct TransportConfig {
     pub debounce_ticks: u32,
 }
 
-impl Default for TransportConfig {
-    fn default() -> Self {
-        TransportConfig {
-            goal_distance_max_m: 0.05,
-            hysteresis_m: 0.01,
-            debounce_ticks: 10,
-        }
-    }
-}
-
 /// Place → Idle when released: payload resting on the ground and every grasp unloaded.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 pub struct PlaceConfig {
     /// Payload height above the ground at or below which it rests (h0_tol of Table II), m.
     pub payload_height_max_m: f64,
@@ -105,281 +76,145 @@ pub struct PlaceConfig {
     pub debounce_ticks: u32,
 }
 
-impl Default for PlaceConfig {
-    fn default() -> Self {
-        PlaceConfig {
-            payload_height_max_m: 0.02,
-            height_hysteresis_m: 0.005,
-            grasp_force_max_n: 5.0,
-            force_hysteresis_n: 1.0,
-            debounce_ticks: 25,
-        }
-    }
-}
-
 /// How long the team may wait for a phase change to be proposed by every unit.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 pub struct AgreementConfig {
     pub pending_window_ticks: u32,
 }
 
-impl Default for AgreementConfig {
-    fn default() -> Self {
-        AgreementConfig {
-            pending_window_ticks: 10,
+/// Who this unit is and how its team runs; the daemon fills it from `configs/unit.toml`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TeamSettings {
+    /// Messages naming another team are rejected.
+    pub team: String,
+    pub team_size: usize,
+    /// This unit's index, 0-based.
+    pub unit_index: usize,
+    pub control_period_us: u64,
+    /// A peer whose latest state is older than this many control periods stops every unit.
+    pub peer_staleness_periods: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TeamError {
+    #[error("team_size must be at least 1")]
+    EmptyTeam,
+    #[error("unit_index {index} is outside a team of {team_size}")]
+    UnitIndex { index: usize, team_size: usize },
+    #[error("team name must not be empty")]
+    EmptyName,
+    #[error("control_period_us must be positive")]
+    ZeroPeriod,
+    #[error("peer_staleness_periods must be at least 1")]
+    ZeroStaleness,
+}
+
+impl TeamSettings {
+    /// The staleness bound in µs.
+    pub fn staleness_us(&self) -> u64 {
+        self.control_period_us
+            .saturating_mul(self.peer_staleness_periods.into())
+    }
+
+    pub fn validate(&self) -> Result<(), TeamError> {
+        if self.team_size == 0 {
+            return Err(TeamError::EmptyTeam);
         }
-    }
-}
-
-/// A unit-model file: where the arm's kinematics come from and the wheel module's geometry.
-/// Robot-specific, so every key is required.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct UnitModelConfig {
-    /// The arm's URDF, relative to the directory of the config file.
-    pub urdf: PathBuf,
-    /// Link the arm is mounted by; joints between it and `arm_tip_link` are the 7 arm joints.
-    pub arm_base_link: String,
-    /// The end-effector link whose pose the clamp watches.
-    pub arm_tip_link: String,
-    /// Pose of `arm_base_link` in the wheel-base frame (origin on the ground between the wheels,
-    /// x forward, z up): translation, m.
-    pub arm_mount_xyz_m: [f64; 3],
-    /// …and fixed-axis roll, pitch, yaw, rad (URDF convention).
-    pub arm_mount_rpy_rad: [f64; 3],
-    pub wheel_radius_m: f64,
-    /// Distance between the two wheels' contact points, m.
-    pub wheel_track_m: f64,
-}
-
-/// A config value outside its valid range.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{field} = {value} must be {expected}")]
-pub struct FieldError {
-    pub field: &'static str,
-    pub value: f64,
-    pub expected: &'static str,
-}
-
-/// Why a settings file's values are unusable.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum InvalidConfig {
-    #[error(transparent)]
-    Field(#[from] FieldError),
-    #[error(transparent)]
-    Tolerance(#[from] StackedError),
-    #[error(transparent)]
-    Team(#[from] crate::team::TeamError),
-}
-
-/// Checks a field: `ok(value)` or an error naming it.
-pub fn check(
-    field: &'static str,
-    value: f64,
-    expected: &'static str,
-    ok: impl Fn(f64) -> bool,
-) -> Result<(), FieldError> {
-    if ok(value) {
+        if self.unit_index >= self.team_size {
+            return Err(TeamError::UnitIndex {
+                index: self.unit_index,
+                team_size: self.team_size,
+            });
+        }
+        if self.team.is_empty() {
+            return Err(TeamError::EmptyName);
+        }
+        if self.control_period_us == 0 {
+            return Err(TeamError::ZeroPeriod);
+        }
+        if self.peer_staleness_periods == 0 {
+            return Err(TeamError::ZeroStaleness);
+        }
         Ok(())
-    } else {
-        Err(FieldError {
-            field,
-            value,
-            expected,
-        })
     }
-}
-
-pub fn positive(v: f64) -> bool {
-    v.is_finite() && v > 0.0
-}
-
-pub(crate) fn non_negative(v: f64) -> bool {
-    v.is_finite() && v >= 0.0
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
-    Parse {
-        path: PathBuf,
-        source: Box<toml::de::Error>,
-    },
-    #[error("{path}: {source}")]
-    Invalid {
-        path: PathBuf,
-        source: InvalidConfig,
-    },
-    #[error("{path}: {source}")]
-    Model {
-        path: PathBuf,
-        source: crate::model::ModelError,
-    },
-}
-
-/// A settings file that can check its own values.
-pub trait Validate {
-    /// The first invalid field, if any.
-    fn validate(&self) -> Result<(), InvalidConfig>;
-}
-
-/// Reads, parses and validates a TOML settings file; errors name the file and the field.
-pub fn load<T: DeserializeOwned + Validate>(path: &Path) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-        path: path.to_owned(),
-        source,
-    })?;
-    let config: T = toml::from_str(&text).map_err(|e| ConfigError::Parse {
-        path: path.to_owned(),
-        source: Box::new(e),
-    })?;
-    config.validate().map_err(|source| ConfigError::Invalid {
-        path: path.to_owned(),
-        source,
-    })?;
-    Ok(config)
 }
 
 impl SyncConfig {
     /// Reads and validates a sync config.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        load(path)
+        config::load(path)
+    }
+
+    /// The shipped `configs/sync.toml` of this source tree (tests and benches).
+    pub fn shipped() -> Result<Self, ConfigError> {
+        Self::from_file(&config::repo_file("configs/sync.toml"))
     }
 }
 
 impl GateConfig {
     /// Reads and validates a gate config.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        load(path)
+        config::load(path)
+    }
+
+    /// The shipped `configs/gate.toml` of this source tree (tests and benches).
+    pub fn shipped() -> Result<Self, ConfigError> {
+        Self::from_file(&config::repo_file("configs/gate.toml"))
     }
 }
 
+/// Most debounce or agreement ticks: 20 s at 50 Hz; longer would never fire in a mission.
+const MAX_TICKS: u64 = 1000;
+
 impl Validate for SyncConfig {
-    fn validate(&self) -> Result<(), InvalidConfig> {
-        self.tolerances.validate()?;
-        check(
-            "search.scan_cells",
-            self.search.scan_cells.into(),
-            "at least 1",
-            |v| v >= 1.0,
-        )?;
-        check(
-            "search.max_evaluations",
-            self.search.max_evaluations.into(),
-            "at least 1",
-            |v| v >= 1.0,
-        )?;
-        check(
-            "search.bisection_tolerance",
-            self.search.bisection_tolerance,
-            "in (0, 1)",
-            |v| positive(v) && v < 1.0,
-        )?;
-        Ok(())
+    fn validate(&self) -> Result<(), FieldError> {
+        section("tolerances", || self.tolerances.validate())?;
+        section("search", || {
+            let s = &self.search;
+            // The scan and the branch and bound run every tick: bounded so a tick stays short.
+            count("scan_cells", s.scan_cells.into(), 1, 4096)?;
+            count("max_evaluations", s.max_evaluations.into(), 1, 100_000)?;
+            positive("bisection_tolerance", s.bisection_tolerance, 0.5)
+        })
     }
 }
 
 impl Validate for GateConfig {
-    fn validate(&self) -> Result<(), InvalidConfig> {
+    fn validate(&self) -> Result<(), FieldError> {
         let (l, t, p) = (&self.lift, &self.transport, &self.place);
-        check(
-            "lift.payload_height_min_m",
-            l.payload_height_min_m,
-            "finite and positive",
-            positive,
-        )?;
-        check(
-            "lift.hysteresis_m",
-            l.hysteresis_m,
-            "finite, >= 0",
-            non_negative,
-        )?;
-        check(
-            "transport.goal_distance_max_m",
-            t.goal_distance_max_m,
-            "finite and positive",
-            positive,
-        )?;
-        check(
-            "transport.hysteresis_m",
-            t.hysteresis_m,
-            "finite, >= 0",
-            non_negative,
-        )?;
-        check(
-            "place.payload_height_max_m",
-            p.payload_height_max_m,
-            "finite, >= 0",
-            non_negative,
-        )?;
-        check(
-            "place.height_hysteresis_m",
-            p.height_hysteresis_m,
-            "finite, >= 0",
-            non_negative,
-        )?;
-        check(
-            "place.grasp_force_max_n",
-            p.grasp_force_max_n,
-            "finite, >= 0",
-            non_negative,
-        )?;
-        check(
-            "place.force_hysteresis_n",
-            p.force_hysteresis_n,
-            "finite, >= 0",
-            non_negative,
-        )?;
+        section("lift", || {
+            positive("payload_height_min_m", l.payload_height_min_m, 2.0)?;
+            in_range("hysteresis_m", l.hysteresis_m, 0.0, 0.5)?;
+            count("debounce_ticks", l.debounce_ticks.into(), 1, MAX_TICKS)
+        })?;
+        section("transport", || {
+            positive("goal_distance_max_m", t.goal_distance_max_m, 10.0)?;
+            in_range("hysteresis_m", t.hysteresis_m, 0.0, 1.0)?;
+            count("debounce_ticks", t.debounce_ticks.into(), 1, MAX_TICKS)
+        })?;
+        section("place", || {
+            in_range("payload_height_max_m", p.payload_height_max_m, 0.0, 1.0)?;
+            in_range("height_hysteresis_m", p.height_hysteresis_m, 0.0, 0.5)?;
+            in_range("grasp_force_max_n", p.grasp_force_max_n, 0.0, 1000.0)?;
+            in_range("force_hysteresis_n", p.force_hysteresis_n, 0.0, 100.0)?;
+            count("debounce_ticks", p.debounce_ticks.into(), 1, MAX_TICKS)
+        })?;
+        section("agreement", || {
+            count(
+                "pending_window_ticks",
+                self.agreement.pending_window_ticks.into(),
+                1,
+                MAX_TICKS,
+            )
+        })?;
         // A payload that counts as lifted must not count as resting, or Place could end at once.
-        check(
-            "lift.payload_height_min_m",
-            l.payload_height_min_m - l.hysteresis_m,
-            "above place.payload_height_max_m + place.height_hysteresis_m (after subtracting lift.hysteresis_m)",
-            |v| v > p.payload_height_max_m + p.height_hysteresis_m,
-        )?;
-        for (field, ticks) in [
-            ("lift.debounce_ticks", l.debounce_ticks),
-            ("transport.debounce_ticks", t.debounce_ticks),
-            ("place.debounce_ticks", p.debounce_ticks),
-            (
-                "agreement.pending_window_ticks",
-                self.agreement.pending_window_ticks,
-            ),
-        ] {
-            check(field, ticks.into(), "at least 1", |v| v >= 1.0)?;
-        }
-        Ok(())
-    }
-}
-
-impl Validate for UnitModelConfig {
-    fn validate(&self) -> Result<(), InvalidConfig> {
-        check(
-            "wheel_radius_m",
-            self.wheel_radius_m,
-            "finite and positive",
-            positive,
-        )?;
-        check(
-            "wheel_track_m",
-            self.wheel_track_m,
-            "finite and positive",
-            positive,
-        )?;
-        let names = ["arm_mount_xyz_m", "arm_mount_rpy_rad"];
-        for (field, values) in names
-            .into_iter()
-            .zip([self.arm_mount_xyz_m, self.arm_mount_rpy_rad])
+        if l.payload_height_min_m - l.hysteresis_m <= p.payload_height_max_m + p.height_hysteresis_m
         {
-            for v in values {
-                check(field, v, "finite", f64::is_finite)?;
-            }
+            return Err(FieldError::new(
+                "lift.payload_height_min_m",
+                "less lift.hysteresis_m must exceed place.payload_height_max_m + place.height_hysteresis_m",
+            ));
         }
         Ok(())
     }
@@ -388,23 +223,21 @@ impl Validate for UnitModelConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn shipped(name: &str) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../configs")
-            .join(name)
-    }
+    use moonhaul_core::config::repo_file;
+    use std::path::PathBuf;
 
     #[test]
-    fn shipped_configs_hold_the_defaults() {
+    fn shipped_configs_hold_the_papers_values() {
+        let sync = SyncConfig::from_file(&repo_file("configs/sync.toml")).unwrap();
         assert_eq!(
-            SyncConfig::from_file(&shipped("sync.toml")).unwrap(),
-            SyncConfig::default()
+            (
+                sync.tolerances.arm_translation_m,
+                sync.tolerances.arm_rotation_deg
+            ),
+            (0.03, 5.0)
         );
-        assert_eq!(
-            GateConfig::from_file(&shipped("gate.toml")).unwrap(),
-            GateConfig::default()
-        );
+        assert_eq!(sync.tolerances.base_xy_m, [0.02, 0.02]);
+        GateConfig::from_file(&repo_file("configs/gate.toml")).unwrap();
     }
 
     fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
@@ -416,60 +249,84 @@ mod tests {
     #[test]
     fn bad_configs_name_file_and_field() {
         let dir = tempfile::tempdir().unwrap();
+        let sync = std::fs::read_to_string(repo_file("configs/sync.toml")).unwrap();
         let sync_cases = [
             (
-                "[tolerances]\narm_translation_mm = 30.0\n",
+                sync.replace("arm_translation_m = ", "arm_translation_mm = "),
                 "arm_translation_mm",
             ),
             (
-                "[tolerances]\narm_translation_m = -0.03\n",
-                "arm_translation_m",
+                sync.replace("arm_translation_m = 0.03", "arm_translation_m = -0.03"),
+                "tolerances.arm_translation_m",
             ),
-            ("[tolerances]\nbase_xy_m = [0.02]\n", "base_xy_m"),
-            ("[search]\nscan_cells = 0\n", "search.scan_cells"),
             (
-                "[search]\nbisection_tolerance = 0.0\n",
+                sync.replace("base_xy_m = [0.02, 0.02]", "base_xy_m = [0.02]"),
+                "tolerances.base_xy_m",
+            ),
+            (
+                sync.replace("base_xy_m = [0.02, 0.02]", "base_xy_m = [0.02, 0.02, 0.02]"),
+                "tolerances.base_xy_m",
+            ),
+            (
+                sync.replace("scan_cells = 64", "scan_cells = 0"),
+                "search.scan_cells",
+            ),
+            (
+                sync.replace("scan_cells = 64", "scan_cells = 4000000000"),
+                "search.scan_cells",
+            ),
+            (
+                sync.replace("bisection_tolerance = 1e-7", "bisection_tolerance = 0.0"),
                 "search.bisection_tolerance",
             ),
+            (sync.replace("max_evaluations = 200\n", ""), "search"),
         ];
         for (i, (text, field)) in sync_cases.into_iter().enumerate() {
-            let path = write(dir.path(), &format!("bad_sync{i}.toml"), text);
+            let path = write(dir.path(), &format!("bad_sync{i}.toml"), &text);
             let message = SyncConfig::from_file(&path).unwrap_err().to_string();
             assert!(
                 message.contains(field) && message.contains("bad_sync"),
-                "{message}"
+                "{field}: {message}"
             );
         }
+        let gate = std::fs::read_to_string(repo_file("configs/gate.toml")).unwrap();
         let gate_cases = [
-            ("[lift]\nh_min = 0.3\n", "h_min"),
+            (gate.replace("payload_height_min_m", "h_min"), "h_min"),
             (
-                "[lift]\npayload_height_min_m = nan\n",
+                gate.replace("payload_height_min_m = 0.27", "payload_height_min_m = nan"),
                 "lift.payload_height_min_m",
             ),
             (
-                "[lift]\npayload_height_min_m = 0.02\n",
+                gate.replace("payload_height_min_m = 0.27", "payload_height_min_m = 0.02"),
                 "lift.payload_height_min_m",
             ),
             (
-                "[transport]\ngoal_distance_max_m = 0.0\n",
+                gate.replace("goal_distance_max_m = 0.05", "goal_distance_max_m = 0.0"),
                 "transport.goal_distance_max_m",
             ),
             (
-                "[place]\nforce_hysteresis_n = -1.0\n",
+                gate.replace("force_hysteresis_n = 1.0", "force_hysteresis_n = -1.0"),
                 "place.force_hysteresis_n",
             ),
-            ("[place]\ndebounce_ticks = 0\n", "place.debounce_ticks"),
             (
-                "[agreement]\npending_window_ticks = 0\n",
+                gate.replace("debounce_ticks = 25", "debounce_ticks = 0"),
+                "place.debounce_ticks",
+            ),
+            (
+                gate.replace("debounce_ticks = 25", "debounce_ticks = 4000000"),
+                "place.debounce_ticks",
+            ),
+            (
+                gate.replace("pending_window_ticks = 10", "pending_window_ticks = 0"),
                 "agreement.pending_window_ticks",
             ),
         ];
         for (i, (text, field)) in gate_cases.into_iter().enumerate() {
-            let path = write(dir.path(), &format!("bad_gate{i}.toml"), text);
+            let path = write(dir.path(), &format!("bad_gate{i}.toml"), &text);
             let message = GateConfig::from_file(&path).unwrap_err().to_string();
             assert!(
                 message.contains(field) && message.contains("bad_gate"),
-                "{message}"
+                "{field}: {message}"
             );
         }
         let missing = SyncConfig::from_file(&dir.path().join("absent.toml"))

@@ -114,7 +114,12 @@ fn main() {
     let mut rng = Numbers(0x9e37_79b9_7f4a_7c15);
 
     let (x, y) = (random_team(&mut rng), random_team(&mut rng));
-    let tol = SyncTolerances::default();
+    // The paper's tolerances (configs/sync.toml).
+    let tol = SyncTolerances {
+        arm_translation_m: 0.03,
+        arm_rotation_deg: 5.0,
+        base_xy_m: [0.02, 0.02],
+    };
     time_per_call("stacked metric d(X, Y), N = 2", 200_000, || {
         black_box(
             black_box(&x)

@@ -6,18 +6,27 @@
 //! of a prepared chain and the policy MLP forward pass.
 //!
 //! - [`atomic_file`]: whole-or-nothing writes of every file the project produces.
+//! - [`config`]: the one loader of every TOML settings file, and its range checks.
 //! - [`input`]: size-capped reads of every file that comes from outside.
 //! - [`se3`]: the paper's arm pose metric d_SE, the wheel metric, and SE(3) interpolation.
+//! - [`seed`]: independent, reproducible random streams from one seed.
 //! - [`stacked`]: the stacked state Y of N units (one arm pose and one base position each),
 //!   its ℓ∞ metric d and interpolation.
 //! - [`state`]: joint and unit state types and the mission [`state::Phase`].
 //! - [`kinematics`]: URDF kinematic trees, forward kinematics between any two links, limits.
+//! - [`unit`]: a wheel–arm unit as its URDF describes it, and differential-drive kinematics.
+//! - `plot_font` (feature `plot`): the bundled font of every PNG plot.
 //! - [`policy`]: the onboard policy runtime (a pure-Rust MLP loaded from safetensors).
 
 pub mod atomic_file;
+pub mod config;
 pub mod input;
 pub mod kinematics;
+#[cfg(feature = "plot")]
+pub mod plot_font;
 pub mod policy;
 pub mod se3;
+pub mod seed;
 pub mod stacked;
 pub mod state;
+pub mod unit;

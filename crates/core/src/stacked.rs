@@ -10,46 +10,29 @@ use crate::se3::{interpolate_pose, planar_distance, pose_distance};
 use nalgebra::{Isometry3, Vector2};
 use serde::{Deserialize, Serialize};
 
-/// Per-subsystem tolerances of the clamp; each subsystem's distance reaches 1 at its tolerance.
-/// Fields missing from a config take the paper's values.
+/// Per-subsystem tolerances of the clamp (`[tolerances]` of `configs/sync.toml`); each
+/// subsystem's distance reaches 1 at its tolerance.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields)]
 pub struct SyncTolerances {
     /// d_max: arm end-effector translation tolerance, m (paper: 0.03).
     pub arm_translation_m: f64,
     /// θ_max: arm end-effector rotation tolerance, degrees (paper: 5).
     pub arm_rotation_deg: f64,
     /// Δ_w: per-axis tolerance of a base's planar position, m (paper: [0.02, 0.02]).
+    #[serde(deserialize_with = "crate::config::exact_array")]
     pub base_xy_m: [f64; 2],
 }
 
-impl Default for SyncTolerances {
-    /// The paper's values.
-    fn default() -> Self {
-        SyncTolerances {
-            arm_translation_m: 0.03,
-            arm_rotation_deg: 5.0,
-            base_xy_m: [0.02, 0.02],
-        }
-    }
-}
-
-impl SyncTolerances {
-    /// Checks that every tolerance is finite and positive; names the offending field.
-    pub fn validate(&self) -> Result<(), StackedError> {
-        let fields = [
-            ("arm_translation_m", self.arm_translation_m),
-            ("arm_rotation_deg", self.arm_rotation_deg),
-            ("base_xy_m[0]", self.base_xy_m[0]),
-            ("base_xy_m[1]", self.base_xy_m[1]),
-        ];
-        match fields
-            .into_iter()
-            .find(|(_, v)| !(v.is_finite() && *v > 0.0))
-        {
-            Some((field, value)) => Err(StackedError::BadTolerance { field, value }),
-            None => Ok(()),
-        }
+impl crate::config::Validate for SyncTolerances {
+    /// Every tolerance finite and positive, and no wider than makes sense for robots that
+    /// share one rigid payload (1 m, 180°).
+    fn validate(&self) -> Result<(), crate::config::FieldError> {
+        use crate::config::positive;
+        positive("arm_translation_m", self.arm_translation_m, 1.0)?;
+        positive("arm_rotation_deg", self.arm_rotation_deg, 180.0)?;
+        positive("base_xy_m[0]", self.base_xy_m[0], 1.0)?;
+        positive("base_xy_m[1]", self.base_xy_m[1], 1.0)
     }
 }
 
@@ -101,8 +84,6 @@ pub enum StackedError {
     UnitCountMismatch { left: usize, right: usize },
     #[error("a stacked state needs at least one unit")]
     Empty,
-    #[error("sync tolerance {field} = {value} must be finite and positive")]
-    BadTolerance { field: &'static str, value: f64 },
 }
 
 impl StackedState {
@@ -179,6 +160,14 @@ impl StackedState {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::Validate;
+
+    /// The paper's tolerances (the values of `configs/sync.toml`).
+    const PAPER: SyncTolerances = SyncTolerances {
+        arm_translation_m: 0.03,
+        arm_rotation_deg: 5.0,
+        base_xy_m: [0.02, 0.02],
+    };
     use crate::se3::{planar_distance, pose_distance};
     use nalgebra::{Translation3, Unit, UnitQuaternion, Vector3};
     use proptest::prelude::*;
@@ -221,7 +210,7 @@ mod tests {
         let two = StackedState {
             units: vec![one.units[0]; 2],
         };
-        let tol = SyncTolerances::default();
+        let tol = PAPER;
         assert_eq!(
             one.distance(&two, &tol),
             Err(StackedError::UnitCountMismatch { left: 1, right: 2 })
@@ -232,13 +221,7 @@ mod tests {
             base_xy_m: [0.02, 0.0],
             ..tol
         };
-        assert_eq!(
-            bad.validate(),
-            Err(StackedError::BadTolerance {
-                field: "base_xy_m[1]",
-                value: 0.0
-            })
-        );
+        assert_eq!(bad.validate().unwrap_err().field, "base_xy_m[1]");
         assert_eq!(tol.validate(), Ok(()));
     }
 
@@ -254,7 +237,7 @@ mod tests {
         let mut x = y.clone();
         x.units[1].base_xy_m = Vector2::new(0.03, 0.0);
         x.units[0].arm = Isometry3::translation(0.0, 0.0, 0.015);
-        let d = x.distance(&y, &SyncTolerances::default()).unwrap();
+        let d = x.distance(&y, &PAPER).unwrap();
         assert_eq!(d.binding, Subsystem::Base(1));
         assert!((d.value - 1.5).abs() < 1e-12);
     }
@@ -262,7 +245,7 @@ mod tests {
     proptest! {
         #[test]
         fn metric_is_the_max_of_its_parts((x, y) in two_teams()) {
-            let tol = SyncTolerances::default();
+            let tol = PAPER;
             let d = x.distance(&y, &tol).unwrap();
             let delta_w = Vector2::from(tol.base_xy_m);
             let parts: Vec<(Subsystem, f64)> = x.units.iter().zip(&y.units).enumerate().flat_map(|(i, (a, b))| {
@@ -278,7 +261,7 @@ mod tests {
 
         #[test]
         fn metric_symmetric_and_zero_on_self((x, y) in two_teams()) {
-            let tol = SyncTolerances::default();
+            let tol = PAPER;
             prop_assert_eq!(x.distance(&x, &tol).unwrap().value, 0.0);
             let xy = x.distance(&y, &tol).unwrap().value;
             let yx = y.distance(&x, &tol).unwrap().value;
@@ -287,7 +270,7 @@ mod tests {
 
         #[test]
         fn metric_scales_inversely_with_tolerances((x, y) in two_teams(), k in 0.1..10.0f64) {
-            let tol = SyncTolerances::default();
+            let tol = PAPER;
             let scaled = SyncTolerances {
                 arm_translation_m: k * tol.arm_translation_m,
                 arm_rotation_deg: k * tol.arm_rotation_deg,
@@ -307,7 +290,7 @@ mod tests {
             prop_assert_eq!(&out, &y);
             // Every subsystem moves monotonically: at t it is no farther from x than the whole step.
             x.interpolate_into(&y, t, &mut out).unwrap();
-            let tol = SyncTolerances::default();
+            let tol = PAPER;
             let whole = x.distance(&y, &tol).unwrap().value;
             prop_assert!(x.distance(&out, &tol).unwrap().value <= whole * t + 1e-9);
         }

@@ -1,6 +1,5 @@
 //! # moonhaul-deploy
 //!
-//! What runs on each robot: the per-unit daemon's settings, and (growing) the control loop,
-//! peer transport and mission log.
+//! What runs on each robot: the per-unit daemon's settings.
 
 pub mod unit_config;

@@ -1,10 +1,11 @@
 //! A unit's daemon settings, read from `configs/unit.toml` (one file per robot, flashed with
-//! the daemon).
+//! the daemon) by core's one loader; the control rate comes from the `configs/control.toml`
+//! the file names.
 
-use moonhaul_coord::config::{check, load, positive, ConfigError, InvalidConfig, Validate};
-use moonhaul_coord::TeamSettings;
+use moonhaul_coord::{TeamError, TeamSettings};
+use moonhaul_core::config::{self, count, ConfigError, ControlConfig, FieldError, Validate};
 use serde::Deserialize;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// `configs/unit.toml`.
@@ -17,31 +18,67 @@ pub struct UnitConfig {
     pub team_size: usize,
     /// Team name: messages from another team are rejected.
     pub team: String,
-    /// Control loop rate, Hz (paper: 50).
+    /// The control-rate file (`configs/control.toml`), relative to this file's folder.
+    pub control: PathBuf,
+    /// Control loop rate, Hz: from `control` when the file is loaded.
+    #[serde(skip)]
     pub control_rate_hz: f64,
     /// A peer whose newest state is older than this many control periods stops every unit.
     pub peer_staleness_periods: u32,
 }
 
+/// Most units in a team: each unit's tick evaluates the whole stacked state.
+const MAX_TEAM_SIZE: u64 = 16;
+/// Longest team name, bytes: it is part of every message's key expression.
+const MAX_TEAM_NAME_BYTES: usize = 64;
+
 impl Validate for UnitConfig {
-    /// The rate here; team membership and staleness by [`TeamSettings::validate`], the one
-    /// check the coordination layer also relies on.
-    fn validate(&self) -> Result<(), InvalidConfig> {
-        check(
-            "control_rate_hz",
-            self.control_rate_hz,
-            "finite and > 0",
-            positive,
-        )?;
-        self.team_settings().validate()?;
+    fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
+        self.control_rate_hz = ControlConfig::load_referenced(path, &self.control)?.control_rate_hz;
         Ok(())
+    }
+
+    /// Ranges here; team membership and staleness by [`TeamSettings::validate`], the one check
+    /// the coordination layer also relies on.
+    fn validate(&self) -> Result<(), FieldError> {
+        count("team_size", self.team_size as u64, 1, MAX_TEAM_SIZE)?;
+        count(
+            "peer_staleness_periods",
+            self.peer_staleness_periods.into(),
+            1,
+            1000,
+        )?;
+        if self.team.len() > MAX_TEAM_NAME_BYTES
+            || !self
+                .team
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+        {
+            return Err(FieldError::new(
+                "team",
+                format!(
+                    "{:?} must be 1 to {MAX_TEAM_NAME_BYTES} ASCII letters, digits, '_' or '-'",
+                    self.team
+                ),
+            ));
+        }
+        self.team_settings().validate().map_err(|e| {
+            let field = match e {
+                TeamError::EmptyTeam => "team_size",
+                TeamError::UnitIndex { .. } => "unit_index",
+                TeamError::EmptyName => "team",
+                TeamError::ZeroPeriod => "control",
+                TeamError::ZeroStaleness => "peer_staleness_periods",
+            };
+            FieldError::new(field, e.to_string())
+        })
     }
 }
 
 impl UnitConfig {
     /// Reads and validates a unit config; errors name the file and the field.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        load(path)
+        config::load(path)
     }
 
     /// What the coordination layer needs of this config.
@@ -69,15 +106,11 @@ impl UnitConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::path::PathBuf;
-
-    fn shipped() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/unit.toml")
-    }
+    use moonhaul_core::config::repo_file;
 
     #[test]
     fn shipped_config_is_valid_with_papers_rate() {
-        let config = UnitConfig::from_file(&shipped()).unwrap();
+        let config = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
         assert_eq!(config.control_period(), Duration::from_millis(20));
         assert_eq!(config.peer_staleness(), Duration::from_millis(60));
         assert_eq!(config.team_size, 2);
@@ -85,32 +118,50 @@ mod tests {
 
     #[test]
     fn bad_configs_name_file_and_field() {
-        let good = std::fs::read_to_string(shipped()).unwrap();
+        let good = std::fs::read_to_string(repo_file("configs/unit.toml")).unwrap();
         let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("control.toml"), "control_rate_hz = 50.0\n").unwrap();
         let cases = [
             (
                 good.replace("unit_index = 0", "unit_index = 2"),
                 "unit_index",
             ),
             (
-                good.replace("control_rate_hz = 50.0", "control_rate_hz = 0.0"),
-                "control_rate_hz",
+                good.replace("team_size = 2", "team_size = 100000"),
+                "team_size",
             ),
             (
                 good.replace("peer_staleness_periods = 3", "peer_staleness_periods = 0"),
                 "peer_staleness_periods",
             ),
+            (
+                good.replace("team = \"moonhaul\"", "team = \"a/b\""),
+                "team",
+            ),
             (format!("{good}\nspeed = 3\n"), "speed"),
             (good.replace("team = \"moonhaul\"", ""), "team"),
+            (
+                good.replace("control = \"control.toml\"", "control = \"rate.toml\""),
+                "rate.toml",
+            ),
         ];
         for (i, (text, field)) in cases.into_iter().enumerate() {
             let path = dir.path().join(format!("unit{i}.toml"));
             std::fs::write(&path, text).unwrap();
             let message = UnitConfig::from_file(&path).unwrap_err().to_string();
             assert!(
-                message.contains(field) && message.contains(&format!("unit{i}.toml")),
-                "{message}"
+                message.contains(field) && message.contains(".toml"),
+                "{field}: {message}"
             );
         }
+        // The shared control rate is checked where it lives.
+        std::fs::write(dir.path().join("control.toml"), "control_rate_hz = 0.0\n").unwrap();
+        let path = dir.path().join("unit.toml");
+        std::fs::write(&path, &good).unwrap();
+        let message = UnitConfig::from_file(&path).unwrap_err().to_string();
+        assert!(
+            message.contains("control.toml") && message.contains("control_rate_hz"),
+            "{message}"
+        );
     }
 }

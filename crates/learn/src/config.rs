@@ -1,12 +1,14 @@
 //! Training configs (`configs/train/*.toml`): every PPO hyperparameter of the paper's Table I
-//! plus the run settings, parsed strictly (`deny_unknown_fields`, every key required) so a
-//! typo or a forgotten key is an error rather than a silent default.
+//! plus the run settings, read by core's one loader ([`moonhaul_core::config`]): every key
+//! required, so a typo or a forgotten key is an error rather than a silent default, and every
+//! number bounded so a run cannot exhaust memory before its first iteration.
 
 use std::path::Path;
 
+use moonhaul_core::config::{
+    self, count, in_range, positive, section, ConfigError, FieldError, Validate,
+};
 use serde::{Deserialize, Serialize};
-
-use crate::LearnError;
 
 /// A whole training config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -133,27 +135,14 @@ pub enum Schedule {
 }
 
 impl TrainConfig {
-    /// Reads, parses and validates a config file.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, LearnError> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(LearnError::io(path))?;
-        Self::parse(&text).map_err(|e| match e {
-            LearnError::ConfigParse { source, .. } => LearnError::ConfigParse {
-                path: path.to_path_buf(),
-                source,
-            },
-            other => other,
-        })
+    /// Reads, parses and validates a config file; errors name the file and the field.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        config::load(path.as_ref())
     }
 
-    /// Parses and validates config text.
-    pub fn parse(text: &str) -> Result<Self, LearnError> {
-        let config: TrainConfig = toml::from_str(text).map_err(|e| LearnError::ConfigParse {
-            path: "<text>".into(),
-            source: Box::new(e),
-        })?;
-        config.validate()?;
-        Ok(config)
+    /// Parses and validates config text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
+        config::parse(text, origin)
     }
 
     /// The config as TOML (the resolved config saved in a run folder).
@@ -162,84 +151,101 @@ impl TrainConfig {
         toml::to_string_pretty(self).unwrap_or_default()
     }
 
-    /// Checks the ranges serde cannot express.
-    pub fn validate(&self) -> Result<(), LearnError> {
-        let (run, env, policy, ppo) = (&self.run, &self.env, &self.policy, &self.ppo);
-        if run.name.is_empty() || run.name.contains(['/', '\\']) {
-            return Err(invalid("run.name", "must be a non-empty file name"));
-        }
-        for (field, value) in [
-            ("run.iterations", run.iterations),
-            ("run.threads", run.threads),
-            ("run.checkpoint_interval", run.checkpoint_interval),
-            ("run.eval_interval", run.eval_interval),
-            ("run.eval_episodes", run.eval_episodes),
-            ("env.num_envs", env.num_envs),
-            ("env.steps_per_env", env.steps_per_env),
-            ("ppo.epochs", ppo.epochs),
-            ("ppo.minibatches", ppo.minibatches),
-        ] {
-            if value == 0 {
-                return Err(invalid(field, "must be positive"));
-            }
-        }
-        if ppo.minibatches > env.num_envs * env.steps_per_env {
-            return Err(invalid(
-                "ppo.minibatches",
-                "exceeds the batch size num_envs * steps_per_env",
-            ));
-        }
-        for (field, hidden) in [
-            ("policy.actor_hidden", &policy.actor_hidden),
-            ("policy.critic_hidden", &policy.critic_hidden),
-        ] {
-            if hidden.contains(&0) {
-                return Err(invalid(field, "every hidden size must be positive"));
-            }
-        }
-        let positive = [
-            ("policy.init_std", policy.init_std),
-            ("ppo.learning_rate", ppo.learning_rate),
-            ("ppo.desired_kl", ppo.desired_kl),
-            ("ppo.min_lr", ppo.min_lr),
-            ("ppo.max_lr", ppo.max_lr),
-            ("ppo.clip", ppo.clip),
-            ("ppo.reward_scale", ppo.reward_scale),
-            ("ppo.max_grad_norm", ppo.max_grad_norm),
-        ];
-        for (field, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(invalid(field, "must be a positive finite number"));
-            }
-        }
-        for (field, value) in [
-            ("ppo.entropy_coef", ppo.entropy_coef),
-            ("ppo.value_loss_coef", ppo.value_loss_coef),
-        ] {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(invalid(field, "must be a non-negative finite number"));
-            }
-        }
-        if !(ppo.lr_factor.is_finite() && ppo.lr_factor > 1.0) {
-            return Err(invalid("ppo.lr_factor", "must be finite and > 1"));
-        }
-        if ppo.min_lr > ppo.max_lr {
-            return Err(invalid("ppo.min_lr", "must not exceed ppo.max_lr"));
-        }
-        if !(ppo.gamma > 0.0 && ppo.gamma <= 1.0) {
-            return Err(invalid("ppo.gamma", "must be in (0, 1]"));
-        }
-        if !(0.0..=1.0).contains(&ppo.lambda) {
-            return Err(invalid("ppo.lambda", "must be in [0, 1]"));
-        }
-        Ok(())
+    /// Samples per PPO iteration, `num_envs × steps_per_env` (bounded by validation).
+    pub fn batch_size(&self) -> usize {
+        self.env.num_envs.saturating_mul(self.env.steps_per_env)
     }
 }
 
-fn invalid(field: &str, reason: &str) -> LearnError {
-    LearnError::InvalidConfig {
-        field: field.into(),
-        reason: reason.into(),
+/// Most samples in one rollout: Table I's largest batch is 4096 × 24 ≈ 98k; 4M samples of an
+/// 80-dim observation are already 1.3 GB of f32.
+pub const MAX_BATCH_SAMPLES: u64 = 1 << 22;
+/// Longest run name, bytes.
+const MAX_NAME_BYTES: usize = 64;
+
+impl Validate for TrainConfig {
+    fn validate(&self) -> Result<(), FieldError> {
+        let (run, env, policy, ppo) = (&self.run, &self.env, &self.policy, &self.ppo);
+        section("run", || {
+            let name_ok = (1..=MAX_NAME_BYTES).contains(&run.name.len())
+                && run.name != "."
+                && run.name != ".."
+                && run
+                    .name
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b"_-.".contains(&b));
+            if !name_ok {
+                return Err(FieldError::new(
+                    "name",
+                    format!(
+                        "{:?} must be a plain folder name: 1 to {MAX_NAME_BYTES} ASCII letters, \
+                         digits, '_', '-' or '.', not \".\" or \"..\"",
+                        run.name
+                    ),
+                ));
+            }
+            count("iterations", run.iterations as u64, 1, 1_000_000)?;
+            count("threads", run.threads as u64, 1, 256)?;
+            count(
+                "checkpoint_interval",
+                run.checkpoint_interval as u64,
+                1,
+                1_000_000,
+            )?;
+            count("eval_interval", run.eval_interval as u64, 1, 1_000_000)?;
+            count("eval_episodes", run.eval_episodes as u64, 1, 100_000)
+        })?;
+        section("env", || {
+            count("num_envs", env.num_envs as u64, 1, 65_536)?;
+            count("steps_per_env", env.steps_per_env as u64, 1, 10_000)?;
+            let samples = (env.num_envs as u64).saturating_mul(env.steps_per_env as u64);
+            if samples > MAX_BATCH_SAMPLES {
+                return Err(FieldError::new(
+                    "steps_per_env",
+                    format!(
+                        "num_envs × steps_per_env = {samples} samples per iteration exceeds \
+                         {MAX_BATCH_SAMPLES}"
+                    ),
+                ));
+            }
+            Ok(())
+        })?;
+        section("policy", || {
+            for (field, hidden) in [
+                ("actor_hidden", &policy.actor_hidden),
+                ("critic_hidden", &policy.critic_hidden),
+            ] {
+                count(field, hidden.len() as u64, 1, 16)?;
+                for (i, &width) in hidden.iter().enumerate() {
+                    count(&format!("{field}[{i}]"), width as u64, 1, 4096)?;
+                }
+            }
+            positive("init_std", policy.init_std, 100.0)
+        })?;
+        section("ppo", || {
+            positive("learning_rate", ppo.learning_rate, 1.0)?;
+            positive("desired_kl", ppo.desired_kl, 1.0)?;
+            in_range("lr_factor", ppo.lr_factor, 1.0 + f64::EPSILON, 100.0)?;
+            positive("min_lr", ppo.min_lr, 1.0)?;
+            positive("max_lr", ppo.max_lr, 1.0)?;
+            if ppo.min_lr > ppo.max_lr {
+                return Err(FieldError::new("min_lr", "must not exceed ppo.max_lr"));
+            }
+            positive("reward_scale", ppo.reward_scale, 1e6)?;
+            positive("gamma", ppo.gamma, 1.0)?;
+            in_range("lambda", ppo.lambda, 0.0, 1.0)?;
+            positive("clip", ppo.clip, 10.0)?;
+            count("epochs", ppo.epochs as u64, 1, 100)?;
+            count(
+                "minibatches",
+                ppo.minibatches as u64,
+                1,
+                self.batch_size() as u64,
+            )?;
+            in_range("entropy_coef", ppo.entropy_coef, 0.0, 10.0)?;
+            in_range("value_loss_coef", ppo.value_loss_coef, 0.0, 100.0)?;
+            positive("max_grad_norm", ppo.max_grad_norm, 1e6)
+        })
     }
 }
 
@@ -295,31 +301,54 @@ mod tests {
     #[test]
     fn resolved_config_round_trips() {
         let c = repo_config("lift");
-        assert_eq!(TrainConfig::parse(&c.to_toml()).unwrap(), c);
+        assert_eq!(
+            TrainConfig::parse(&c.to_toml(), Path::new("resolved.toml")).unwrap(),
+            c
+        );
     }
 
     #[test]
     fn rejects_unknown_keys_tasks_and_bad_ranges() {
         let text = repo_config("pendulum").to_toml();
-        let typo = text.replace("entropy_coef", "entropy_coeff");
-        assert!(matches!(
-            TrainConfig::parse(&typo),
-            Err(LearnError::ConfigParse { .. })
-        ));
-        let task = text.replace("task = \"pendulum\"", "task = \"cartpole\"");
-        assert!(matches!(
-            TrainConfig::parse(&task),
-            Err(LearnError::ConfigParse { .. })
-        ));
-        let mut c = repo_config("pendulum");
-        c.ppo.gamma = 1.5;
-        assert!(
-            matches!(c.validate(), Err(LearnError::InvalidConfig { field, .. }) if field == "ppo.gamma")
-        );
-        let mut c = repo_config("pendulum");
-        c.env.num_envs = 0;
-        assert!(
-            matches!(c.validate(), Err(LearnError::InvalidConfig { field, .. }) if field == "env.num_envs")
-        );
+        let cases = [
+            (
+                text.replace("entropy_coef", "entropy_coeff"),
+                "entropy_coeff",
+            ),
+            (
+                text.replace("task = \"pendulum\"", "task = \"cartpole\""),
+                "run.task",
+            ),
+            (text.replace("gamma = 0.98", "gamma = 1.5"), "ppo.gamma"),
+            (
+                text.replace("num_envs = ", "num_envs = 0 #"),
+                "env.num_envs",
+            ),
+            (
+                text.replace("num_envs = ", "num_envs = 65536 #")
+                    .replace("steps_per_env = ", "steps_per_env = 10000 #"),
+                "env.steps_per_env",
+            ),
+            (
+                text.replace("name = \"pendulum\"", "name = \"../escape\""),
+                "run.name",
+            ),
+            (
+                text.replace("name = \"pendulum\"", "name = \"..\""),
+                "run.name",
+            ),
+            (
+                text.replace("epochs = ", "epochs = 18446744073709551615 #"),
+                "ppo.epochs",
+            ),
+        ];
+        for (text, field) in cases {
+            let err = TrainConfig::parse(&text, Path::new("train.toml")).unwrap_err();
+            let message = err.to_string();
+            assert!(
+                message.contains(field) && message.contains("train.toml"),
+                "{field}: {message}"
+            );
+        }
     }
 }

@@ -12,13 +12,9 @@ pub enum LearnError {
         #[source]
         source: std::io::Error,
     },
-    /// A training config is not valid TOML for [`TrainConfig`](crate::config::TrainConfig).
-    #[error("cannot parse training config {}", path.display())]
-    ConfigParse {
-        path: PathBuf,
-        #[source]
-        source: Box<toml::de::Error>,
-    },
+    /// A training config cannot be read, parsed or validated.
+    #[error(transparent)]
+    Config(#[from] moonhaul_core::config::ConfigError),
     /// A config value parses but is out of range.
     #[error("config field `{field}` is invalid: {reason}")]
     InvalidConfig { field: String, reason: String },

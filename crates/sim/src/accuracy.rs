@@ -10,7 +10,7 @@ use moonhaul_core::state::Phase;
 use crate::config::PhysicsConfig;
 use crate::randomization::PayloadKind;
 use crate::scene::{Env, EnvOptions, SceneModel};
-use crate::scripted::{run_mission, MissionSummary};
+use crate::scripted::{run_mission, MissionPlan, MissionSummary};
 use crate::SimError;
 
 /// Differences between the configured and the reference solver on one mission.
@@ -75,7 +75,7 @@ struct Trace {
     summary: MissionSummary,
 }
 
-fn trace(scene: &SceneModel) -> Result<Trace, SimError> {
+fn trace(scene: &SceneModel, plan: MissionPlan) -> Result<Trace, SimError> {
     let options = EnvOptions {
         randomize: false,
         payload: Some(PayloadKind::Box),
@@ -83,7 +83,6 @@ fn trace(scene: &SceneModel) -> Result<Trace, SimError> {
     let mut env = Env::new(scene, 0, options)?;
     let weight_n =
         scene.payloads[&PayloadKind::Box].model.mass_kg() * scene.config.physics.gravity_mps2.abs();
-    let plan = scene.config.mission;
     let mut samples = Vec::new();
     let (mut force_sum, mut n) = (0.0, 0usize);
     let summary = run_mission(scene, &mut env, plan, |phase, s| {
@@ -101,8 +100,8 @@ fn trace(scene: &SceneModel) -> Result<Trace, SimError> {
     })
 }
 
-/// Runs the comparison.
-pub fn compare(scene: &SceneModel) -> Result<AccuracyReport, SimError> {
+/// Runs the comparison on the scripted mission `plan`.
+pub fn compare(scene: &SceneModel, plan: MissionPlan) -> Result<AccuracyReport, SimError> {
     let mut config = scene.config.clone();
     config.physics = PhysicsConfig {
         physics_hz: 1600.0,
@@ -113,7 +112,7 @@ pub fn compare(scene: &SceneModel) -> Result<AccuracyReport, SimError> {
         ..config.physics
     };
     let fine = SceneModel::new(config)?;
-    let (a, b) = (trace(scene)?, trace(&fine)?);
+    let (a, b) = (trace(scene, plan)?, trace(&fine, plan)?);
     let n = a.samples.len().min(b.samples.len()).max(1);
     let diffs = a
         .samples

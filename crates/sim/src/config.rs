@@ -1,15 +1,18 @@
 //! The simulator's configuration, `configs/sim.toml`: physics rates and solver settings, motor
-//! gains, the grasp's break limits, the scene layout and the domain randomization. Every field is
-//! required in the file (`deny_unknown_fields`, no serde defaults) so a typo cannot silently fall
-//! back; [`SimConfig::default`] holds the same values for tests and tools.
+//! gains, the grasp's break limits, the scene layout and the domain randomization, read by
+//! core's one loader ([`moonhaul_core::config`]): every key required, every number checked
+//! against a range whose upper bound keeps a world buildable in bounded time and memory. The
+//! control rate comes from the `configs/control.toml` the file names.
 
 use std::path::{Path, PathBuf};
 
+use moonhaul_core::config::{
+    self, count, in_range, integer_ratio, positive, section, ConfigError, ControlConfig,
+    FieldError, Validate,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::randomization::Randomization;
-use crate::scripted::MissionPlan;
-use crate::SimError;
 
 /// Physics and control rates and the rapier solver settings.
 ///
@@ -23,11 +26,9 @@ use crate::SimError;
 pub struct PhysicsConfig {
     /// Integration steps per second (default 200 Hz).
     pub physics_hz: f64,
-    /// Collision-detection passes per second; divides `physics_hz` and is a multiple of
-    /// `control_hz`.
+    /// Collision-detection passes per second; divides `physics_hz` and is a whole multiple of
+    /// the control rate.
     pub collision_hz: f64,
-    /// Control steps per second (default 50 Hz, the onboard rate).
-    pub control_hz: f64,
     /// Gravity along world Z, m/s².
     pub gravity_mps2: f64,
     /// Gauss–Seidel sweeps per substep (`IntegrationParameters::num_internal_pgs_iterations`).
@@ -39,37 +40,6 @@ pub struct PhysicsConfig {
     /// predicted wheel or caster contact adds constraint rows that need a multibody mass-matrix
     /// solve; 2 mm keeps only the touching ones.
     pub prediction_distance_m: f64,
-}
-
-/// The integer ratio `num / den` of two rates, or an error naming `field`.
-fn ratio(num: f64, den: f64, field: &'static str) -> Result<usize, SimError> {
-    let r = num / den;
-    let rounded = r.round();
-    if r.is_finite() && rounded >= 1.0 && (r - rounded).abs() < 1e-9 {
-        Ok(rounded as usize)
-    } else {
-        Err(SimError::Config {
-            field,
-            reason: format!("{num} / {den} = {r} is not a positive integer"),
-        })
-    }
-}
-
-impl PhysicsConfig {
-    /// Substeps per collision pass.
-    pub fn substeps(&self) -> Result<usize, SimError> {
-        ratio(self.physics_hz, self.collision_hz, "physics.collision_hz")
-    }
-
-    /// Collision passes (rapier pipeline steps) per control step.
-    pub fn pipeline_steps_per_control(&self) -> Result<usize, SimError> {
-        ratio(self.collision_hz, self.control_hz, "physics.control_hz")
-    }
-
-    /// Integration steps per control step.
-    pub fn decimation(&self) -> Result<usize, SimError> {
-        ratio(self.physics_hz, self.control_hz, "physics.control_hz")
-    }
 }
 
 /// Joint motor gains; torques stay within each joint's URDF effort limit.
@@ -128,125 +98,130 @@ pub struct SceneConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimConfig {
+    /// The control-rate file (`configs/control.toml`), relative to this file's folder.
+    pub control: PathBuf,
+    /// Control steps per second, read from `control` when the file is loaded.
+    #[serde(skip)]
+    pub control_hz: f64,
     pub physics: PhysicsConfig,
     pub motors: MotorConfig,
     pub grasp: GraspConfig,
     pub scene: SceneConfig,
     pub randomization: Randomization,
-    /// The scripted mission flown by `moonhaul sim demo` and replayed by `sim bench`.
-    pub mission: MissionPlan,
-}
-
-impl Default for SimConfig {
-    fn default() -> Self {
-        SimConfig {
-            physics: PhysicsConfig {
-                physics_hz: 200.0,
-                collision_hz: 50.0,
-                control_hz: 50.0,
-                gravity_mps2: -9.81,
-                num_internal_pgs_iterations: 2,
-                num_internal_stabilization_iterations: 1,
-                prediction_distance_m: 0.002,
-            },
-            motors: MotorConfig {
-                arm_stiffness_per_s2: 2500.0,
-                arm_damping_per_s: 100.0,
-                wheel_gain_nms_per_rad: 50.0,
-            },
-            grasp: GraspConfig {
-                break_force_n: 600.0,
-                break_torque_nm: 200.0,
-            },
-            scene: SceneConfig {
-                assets_dir: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets"),
-                reach_m: 0.57,
-                payload_friction: 0.8,
-                terrain_size_m: 5.0,
-                terrain_spacing_m: 0.025,
-                terrain_center_x_m: 1.0,
-            },
-            randomization: Randomization::default(),
-            mission: MissionPlan::default(),
-        }
-    }
 }
 
 impl SimConfig {
-    /// Reads and validates a TOML config; errors name the file and the field.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, SimError> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
-        let mut config: SimConfig = toml::from_str(&text).map_err(|source| SimError::Toml {
-            path: path.to_owned(),
-            source: Box::new(source),
-        })?;
-        if config.scene.assets_dir.is_relative() {
-            let dir = path.parent().unwrap_or(Path::new("."));
-            config.scene.assets_dir = dir.join(&config.scene.assets_dir);
-        }
-        config.validate()?;
-        Ok(config)
+    /// Reads and validates `configs/sim.toml` and the control rate it names; errors name the
+    /// file and the field.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        config::load(path.as_ref())
     }
 
-    /// Checks ranges that serde cannot.
-    pub fn validate(&self) -> Result<(), SimError> {
-        let positive = |field: &'static str, value: f64| {
-            if value.is_finite() && value > 0.0 {
-                Ok(())
-            } else {
-                Err(SimError::Config {
-                    field,
-                    reason: format!("{value} must be finite and > 0"),
-                })
-            }
-        };
-        positive("physics.physics_hz", self.physics.physics_hz)?;
-        positive("physics.collision_hz", self.physics.collision_hz)?;
-        positive("physics.control_hz", self.physics.control_hz)?;
-        positive(
-            "physics.prediction_distance_m",
-            self.physics.prediction_distance_m,
-        )?;
-        self.physics.substeps()?;
-        self.physics.pipeline_steps_per_control()?;
-        if self.physics.num_internal_pgs_iterations == 0 {
-            return Err(SimError::Config {
-                field: "physics.num_internal_pgs_iterations",
-                reason: "must be >= 1".into(),
-            });
-        }
-        positive(
-            "motors.arm_stiffness_per_s2",
-            self.motors.arm_stiffness_per_s2,
-        )?;
-        positive("motors.arm_damping_per_s", self.motors.arm_damping_per_s)?;
-        positive(
-            "motors.wheel_gain_nms_per_rad",
-            self.motors.wheel_gain_nms_per_rad,
-        )?;
-        positive("grasp.break_force_n", self.grasp.break_force_n)?;
-        positive("grasp.break_torque_nm", self.grasp.break_torque_nm)?;
-        positive("scene.reach_m", self.scene.reach_m)?;
-        positive("scene.payload_friction", self.scene.payload_friction)?;
-        positive("scene.terrain_size_m", self.scene.terrain_size_m)?;
-        positive("scene.terrain_spacing_m", self.scene.terrain_spacing_m)?;
-        let m = &self.mission;
-        positive("mission.lift_height_m", m.lift_height_m)?;
-        positive("mission.lift_duration_s", m.lift_duration_s)?;
-        positive("mission.speed_mps", m.speed_mps)?;
-        positive("mission.accel_mps2", m.accel_mps2)?;
-        positive("mission.place_duration_s", m.place_duration_s)?;
-        positive("mission.touchdown_speed_mps", m.touchdown_speed_mps)?;
-        self.randomization.validate()
+    /// The shipped `configs/sim.toml` of this source tree (tests and benches).
+    pub fn shipped() -> Result<Self, ConfigError> {
+        Self::load(config::repo_file("configs/sim.toml"))
     }
 
     /// The unit URDF.
     pub fn unit_urdf(&self) -> PathBuf {
         self.scene.assets_dir.join("unit.urdf")
+    }
+
+    /// Integration substeps per collision pass.
+    pub fn substeps(&self) -> usize {
+        // Checked whole at load; `max(1)` only guards hand-built configs.
+        (self.physics.physics_hz / self.physics.collision_hz)
+            .round()
+            .max(1.0) as usize
+    }
+
+    /// Collision passes (rapier pipeline steps) per control step.
+    pub fn pipeline_steps_per_control(&self) -> usize {
+        (self.physics.collision_hz / self.control_hz)
+            .round()
+            .max(1.0) as usize
+    }
+
+    /// Integration steps per control step.
+    pub fn decimation(&self) -> usize {
+        self.substeps() * self.pipeline_steps_per_control()
+    }
+}
+
+/// Most heightfield cells along one side: 4096² cells are 64 MiB of f32 per world.
+const MAX_TERRAIN_CELLS: f64 = 4096.0;
+
+impl Validate for SimConfig {
+    fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
+        self.control_hz = ControlConfig::load_referenced(path, &self.control)?.control_rate_hz;
+        self.scene.assets_dir = config::resolve(path, &self.scene.assets_dir);
+        Ok(())
+    }
+
+    fn validate(&self) -> Result<(), FieldError> {
+        section("physics", || {
+            let p = &self.physics;
+            // 10 kHz integration is far finer than any accuracy check needs; above it a
+            // training run would take days.
+            positive("physics_hz", p.physics_hz, 10_000.0)?;
+            positive("collision_hz", p.collision_hz, p.physics_hz)?;
+            integer_ratio("collision_hz", p.physics_hz, p.collision_hz).map_err(|e| {
+                FieldError::new(e.field, format!("physics_hz / collision_hz: {}", e.reason))
+            })?;
+            integer_ratio("collision_hz", p.collision_hz, self.control_hz).map_err(|e| {
+                FieldError::new(
+                    e.field,
+                    format!(
+                        "collision_hz / the control rate ({} Hz): {}",
+                        self.control_hz, e.reason
+                    ),
+                )
+            })?;
+            in_range("gravity_mps2", p.gravity_mps2, -30.0, 0.0)?;
+            count(
+                "num_internal_pgs_iterations",
+                p.num_internal_pgs_iterations as u64,
+                1,
+                100,
+            )?;
+            count(
+                "num_internal_stabilization_iterations",
+                p.num_internal_stabilization_iterations as u64,
+                0,
+                100,
+            )?;
+            positive("prediction_distance_m", p.prediction_distance_m, 0.1)
+        })?;
+        section("motors", || {
+            let m = &self.motors;
+            positive("arm_stiffness_per_s2", m.arm_stiffness_per_s2, 1e6)?;
+            positive("arm_damping_per_s", m.arm_damping_per_s, 1e4)?;
+            positive("wheel_gain_nms_per_rad", m.wheel_gain_nms_per_rad, 1e4)
+        })?;
+        section("grasp", || {
+            positive("break_force_n", self.grasp.break_force_n, 1e5)?;
+            positive("break_torque_nm", self.grasp.break_torque_nm, 1e5)
+        })?;
+        section("scene", || {
+            let s = &self.scene;
+            positive("reach_m", s.reach_m, 2.0)?;
+            positive("payload_friction", s.payload_friction, 2.0)?;
+            positive("terrain_size_m", s.terrain_size_m, 100.0)?;
+            positive("terrain_spacing_m", s.terrain_spacing_m, s.terrain_size_m)?;
+            if s.terrain_size_m / s.terrain_spacing_m > MAX_TERRAIN_CELLS {
+                return Err(FieldError::new(
+                    "terrain_spacing_m",
+                    format!(
+                        "{} m gives more than {MAX_TERRAIN_CELLS} cells along the {} m terrain",
+                        s.terrain_spacing_m, s.terrain_size_m
+                    ),
+                ));
+            }
+            in_range("terrain_center_x_m", s.terrain_center_x_m, -100.0, 100.0)
+        })?;
+        section("randomization", || {
+            self.randomization.validate(self.scene.terrain_spacing_m)
+        })
     }
 }
 
@@ -254,43 +229,97 @@ impl SimConfig {
 mod tests {
     use super::*;
 
-    fn repo_config() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/sim.toml")
-    }
-
     #[test]
-    fn the_repo_config_equals_the_defaults() {
-        let mut file = SimConfig::load(repo_config()).unwrap();
-        let default = SimConfig::default();
+    fn the_repo_config_loads_with_the_shared_control_rate() {
+        let config = SimConfig::shipped().unwrap();
+        assert_eq!(config.control_hz, 50.0);
         assert_eq!(
-            file.scene.assets_dir.canonicalize().unwrap(),
-            default.scene.assets_dir.canonicalize().unwrap()
+            (config.substeps(), config.pipeline_steps_per_control()),
+            (4, 1)
         );
-        file.scene.assets_dir = default.scene.assets_dir.clone();
-        assert_eq!(file, default);
+        assert_eq!(config.decimation(), 4);
+        assert!(config.unit_urdf().exists());
     }
 
     #[test]
-    fn unknown_fields_and_bad_rates_are_rejected_by_name() {
-        let text = std::fs::read_to_string(repo_config()).unwrap();
-        let typo = text.replace("physics_hz", "physics_hertz");
-        assert!(toml::from_str::<SimConfig>(&typo)
-            .unwrap_err()
-            .to_string()
-            .contains("physics_hertz"));
-        let mut config = SimConfig::default();
-        config.physics.control_hz = 60.0;
-        assert!(config
-            .validate()
-            .unwrap_err()
-            .to_string()
-            .contains("physics.control_hz"));
-        config.physics.control_hz = 50.0;
-        config.physics.collision_hz = 75.0;
-        assert!(config
-            .validate()
-            .unwrap_err()
-            .to_string()
-            .contains("physics.collision_hz"));
+    fn bad_values_are_rejected_by_file_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::copy(
+            config::repo_file("configs/control.toml"),
+            dir.path().join("control.toml"),
+        )
+        .unwrap();
+        let text = std::fs::read_to_string(config::repo_file("configs/sim.toml"))
+            .unwrap()
+            .replace(
+                "\"../assets\"",
+                &format!("{:?}", config::repo_file("assets")),
+            );
+        let cases = [
+            (text.replace("physics_hz", "physics_hertz"), "physics_hertz"),
+            (
+                text.replace("collision_hz = 50.0", "collision_hz = 75.0"),
+                "physics.collision_hz",
+            ),
+            (
+                text.replace("collision_hz = 50.0", "collision_hz = 40.0"),
+                "physics.collision_hz",
+            ),
+            (
+                text.replace("physics_hz = 200.0", "physics_hz = 1e12"),
+                "physics.physics_hz",
+            ),
+            (
+                text.replace(
+                    "num_internal_pgs_iterations = 2",
+                    "num_internal_pgs_iterations = 1000000000",
+                ),
+                "physics.num_internal_pgs_iterations",
+            ),
+            (
+                text.replace("terrain_spacing_m = 0.025", "terrain_spacing_m = 1e-6"),
+                "scene.terrain_spacing_m",
+            ),
+            (
+                text.replace("terrain_size_m = 5.0", "terrain_size_m = inf"),
+                "scene.terrain_size_m",
+            ),
+            (
+                text.replace(
+                    "wheel_friction = [0.6, 1.0]",
+                    "wheel_friction = [0.6, 1.0, 1.2]",
+                ),
+                "randomization.wheel_friction",
+            ),
+            (
+                text.replace(
+                    "correlation_length_m = [0.05, 0.15]",
+                    "correlation_length_m = [0.05, 1e9]",
+                ),
+                "randomization.terrain.correlation_length_m",
+            ),
+            (
+                text.replace("control = \"control.toml\"", "control = \"absent.toml\""),
+                "absent.toml",
+            ),
+        ];
+        for (i, (text, field)) in cases.into_iter().enumerate() {
+            let path = dir.path().join(format!("sim{i}.toml"));
+            std::fs::write(&path, text).unwrap();
+            let message = SimConfig::load(&path).unwrap_err().to_string();
+            assert!(
+                message.contains(field) && message.contains(".toml"),
+                "{field}: {message}"
+            );
+        }
+        // The shared control rate takes part in the cross-field check.
+        std::fs::write(dir.path().join("control.toml"), "control_rate_hz = 60.0\n").unwrap();
+        let path = dir.path().join("sim.toml");
+        std::fs::write(&path, text).unwrap();
+        let message = SimConfig::load(&path).unwrap_err().to_string();
+        assert!(
+            message.contains("physics.collision_hz") && message.contains("60"),
+            "{message}"
+        );
     }
 }

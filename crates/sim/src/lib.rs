@@ -33,18 +33,10 @@ pub use scene::{Env, EnvOptions, EnvState, SceneModel};
 /// Why the simulator cannot start or continue; each variant names the file, field or body.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
-    #[error("cannot read {}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("invalid TOML in {}", path.display())]
-    Toml {
-        path: PathBuf,
-        #[source]
-        source: Box<toml::de::Error>,
-    },
+    #[error(transparent)]
+    Settings(#[from] moonhaul_core::config::ConfigError),
+    #[error("invalid simulator config: {0}")]
+    Invalid(#[from] moonhaul_core::config::FieldError),
     #[error("config field {field}: {reason}")]
     Config { field: &'static str, reason: String },
     #[error("model {}: {reason}", path.display())]

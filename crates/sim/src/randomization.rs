@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::terrain::TerrainRandomization;
 use crate::SimError;
+use moonhaul_core::config::{count, in_range, interval, section, FieldError};
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
 
 /// The payloads of the paper.
@@ -63,6 +64,7 @@ impl std::str::FromStr for PayloadKind {
 #[serde(deny_unknown_fields)]
 pub struct Randomization {
     /// Wheel–ground friction coefficient range, uniform.
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
     pub wheel_friction: [f64; 2],
     /// Standard deviation of the Gaussian noise added to each wheel velocity command, rad/s.
     pub wheel_velocity_noise_std_radps: f64,
@@ -73,25 +75,9 @@ pub struct Randomization {
     /// Payloads drawn uniformly at reset.
     pub payloads: Vec<PayloadKind>,
     /// Payload mass scale range, uniform.
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
     pub payload_mass_scale: [f64; 2],
     pub terrain: TerrainRandomization,
-}
-
-impl Default for Randomization {
-    fn default() -> Self {
-        Randomization {
-            wheel_friction: [0.6, 1.0],
-            wheel_velocity_noise_std_radps: 0.05,
-            arm_position_noise_std_rad: 0.01,
-            initial_joint_variation_rad: 0.02,
-            payloads: vec![PayloadKind::Box, PayloadKind::Bricks],
-            payload_mass_scale: [1.0, 1.0],
-            terrain: TerrainRandomization {
-                max_peak_to_peak_m: 0.02,
-                correlation_length_m: [0.05, 0.15],
-            },
-        }
-    }
 }
 
 /// What one episode of one env got: drawn at reset.
@@ -137,55 +123,47 @@ fn uniform(rng: &mut ChaCha8Rng, [lo, hi]: [f64; 2]) -> f64 {
 }
 
 impl Randomization {
-    /// Checks ranges; errors name the field.
-    pub fn validate(&self) -> Result<(), SimError> {
-        let bad = |field: &'static str, reason: String| Err(SimError::Config { field, reason });
-        let range = |field: &'static str, [lo, hi]: [f64; 2], min: f64| {
-            if lo.is_finite() && hi.is_finite() && lo >= min && hi >= lo {
-                Ok(())
-            } else {
-                bad(field, format!("[{lo}, {hi}] needs {min} <= low <= high"))
-            }
-        };
-        range("randomization.wheel_friction", self.wheel_friction, 0.0)?;
-        range(
-            "randomization.payload_mass_scale",
-            self.payload_mass_scale,
-            f64::MIN_POSITIVE,
+    /// Checks every range, relative to the `[randomization]` section; `terrain_spacing_m` is
+    /// the heightfield grid the correlation lengths are resolved on.
+    pub fn validate(&self, terrain_spacing_m: f64) -> Result<(), FieldError> {
+        interval("wheel_friction", self.wheel_friction, 0.0, 2.0)?;
+        interval("payload_mass_scale", self.payload_mass_scale, 0.1, 10.0)?;
+        in_range(
+            "wheel_velocity_noise_std_radps",
+            self.wheel_velocity_noise_std_radps,
+            0.0,
+            10.0,
         )?;
-        for (field, v) in [
-            (
-                "randomization.wheel_velocity_noise_std_radps",
-                self.wheel_velocity_noise_std_radps,
-            ),
-            (
-                "randomization.arm_position_noise_std_rad",
-                self.arm_position_noise_std_rad,
-            ),
-            (
-                "randomization.initial_joint_variation_rad",
-                self.initial_joint_variation_rad,
-            ),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(field, format!("{v} must be finite and >= 0"));
-            }
-        }
-        if self.payloads.is_empty() {
-            return bad(
-                "randomization.payloads",
-                "needs at least one payload".into(),
-            );
-        }
-        // The terrain model validates its own ranges; sample a tiny field to run that check.
-        let mut rng = rand::SeedableRng::seed_from_u64(0);
-        self.terrain
-            .sample(2, 0.01, &mut rng as &mut ChaCha8Rng)
-            .map(|_| ())
-            .map_err(|e| SimError::Config {
-                field: "randomization.terrain",
-                reason: e.to_string(),
-            })
+        in_range(
+            "arm_position_noise_std_rad",
+            self.arm_position_noise_std_rad,
+            0.0,
+            0.5,
+        )?;
+        in_range(
+            "initial_joint_variation_rad",
+            self.initial_joint_variation_rad,
+            0.0,
+            0.5,
+        )?;
+        count("payloads", self.payloads.len() as u64, 1, 64).map_err(|e| {
+            FieldError::new(
+                e.field,
+                format!("needs 1 to 64 entries, got {}", self.payloads.len()),
+            )
+        })?;
+        section("terrain", || {
+            let t = &self.terrain;
+            in_range("max_peak_to_peak_m", t.max_peak_to_peak_m, 0.0, 0.5)?;
+            // The smoothing kernel spans ~3 correlation lengths: at most 1 m keeps it a few
+            // hundred cells; at least one grid cell keeps the field resolved.
+            interval(
+                "correlation_length_m",
+                t.correlation_length_m,
+                terrain_spacing_m,
+                1.0,
+            )
+        })
     }
 
     /// Draws one episode's randomization.
@@ -243,6 +221,11 @@ impl Randomization {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The `[randomization]` of the shipped `configs/sim.toml`: the paper's ranges.
+    fn shipped() -> Randomization {
+        crate::SimConfig::shipped().unwrap().randomization
+    }
     use rand::SeedableRng;
 
     fn mean_std(xs: &[f64]) -> (f64, f64) {
@@ -278,7 +261,7 @@ mod tests {
     fn friction_joint_offsets_and_payloads_follow_their_uniform_distributions() {
         let r = Randomization {
             payloads: PayloadKind::ALL.to_vec(),
-            ..Default::default()
+            ..shipped()
         };
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let draws: Vec<EpisodeDraw> = (0..4000).map(|_| r.draw(&mut rng)).collect();
@@ -298,7 +281,7 @@ mod tests {
 
     #[test]
     fn command_noise_has_the_papers_standard_deviations() {
-        let noise = Randomization::default().command_noise();
+        let noise = shipped().command_noise();
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let (mut wheel, mut arm) = (Vec::new(), Vec::new());
         for _ in 0..20_000 {
@@ -324,7 +307,7 @@ mod tests {
     fn payload_mass_scale_is_uniform_when_configured() {
         let r = Randomization {
             payload_mass_scale: [0.8, 1.2],
-            ..Default::default()
+            ..shipped()
         };
         let mut rng = ChaCha8Rng::seed_from_u64(2);
         let mut s: Vec<f64> = (0..4000)
@@ -335,7 +318,7 @@ mod tests {
 
     #[test]
     fn terrain_amplitude_and_correlation_length_are_uniform_in_the_papers_ranges() {
-        let terrain = Randomization::default().terrain;
+        let terrain = shipped().terrain;
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let (mut amplitude, mut length) = (Vec::new(), Vec::new());
         for _ in 0..2000 {
@@ -351,17 +334,21 @@ mod tests {
     fn bad_ranges_are_named() {
         let r = Randomization {
             wheel_friction: [1.0, 0.6],
-            ..Default::default()
+            ..shipped()
         };
         assert!(r
-            .validate()
+            .validate(0.025)
             .unwrap_err()
             .to_string()
             .contains("wheel_friction"));
         let r = Randomization {
             payloads: vec![],
-            ..Default::default()
+            ..shipped()
         };
-        assert!(r.validate().unwrap_err().to_string().contains("payloads"));
+        assert!(r
+            .validate(0.025)
+            .unwrap_err()
+            .to_string()
+            .contains("payloads"));
     }
 }

@@ -10,17 +10,18 @@
 //! bases drift apart within seconds (their wheels slip and load differently) and the grasps
 //! would take the strain. Unit 1 faces −X, so it tracks the reference driving backwards.
 
+use moonhaul_core::config::{self, in_range, positive, ConfigError, FieldError, Validate};
 use moonhaul_core::se3::rotation_angle;
-use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, ARM_JOINTS};
+use moonhaul_core::state::{Phase, PlanarPose, PlanarVelocity, UnitCommand, ARM_JOINTS};
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 use crate::ik::{self, IkSettings};
 use crate::scene::{Env, EnvState, SceneModel, UNITS};
 use crate::SimError;
 
-/// Timing and geometry of the scripted mission: the `[mission]` section of
-/// `configs/sim.toml`.
+/// Timing and geometry of the scripted mission: `configs/mission.toml`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MissionPlan {
@@ -57,28 +58,49 @@ pub struct MissionPlan {
     pub cross_gain_per_ms: f64,
 }
 
-impl Default for MissionPlan {
-    /// The demo: lift 0.3 m, drive 2 m at 0.2 m/s, set down.
-    fn default() -> Self {
-        MissionPlan {
-            settle_s: 1.0,
-            lift_height_m: 0.3,
-            lift_duration_s: 4.0,
-            hold_s: 1.0,
-            distance_m: 2.0,
-            speed_mps: 0.2,
-            accel_mps2: 0.2,
-            carry_hold_s: 0.0,
-            place_duration_s: 5.0,
-            approach_height_m: 0.04,
-            touchdown_speed_mps: 0.02,
-            place_press_m: 0.005,
-            after_release_s: 2.0,
-            release_after_contact_s: 0.3,
-            along_gain_per_s: 1.0,
-            heading_gain_per_s: 2.0,
-            cross_gain_per_ms: 4.0,
+impl MissionPlan {
+    /// Reads and validates a mission plan; errors name the file and the field.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        config::load(path.as_ref())
+    }
+
+    /// The shipped `configs/mission.toml` of this source tree (tests and benches).
+    pub fn shipped() -> Result<Self, ConfigError> {
+        Self::load(config::repo_file("configs/mission.toml"))
+    }
+}
+
+/// Longest phase of the plan, s: a minute-long lift or a kilometre-long drive is a typo.
+const MAX_PHASE_S: f64 = 600.0;
+
+impl Validate for MissionPlan {
+    fn validate(&self) -> Result<(), FieldError> {
+        for (field, value) in [
+            ("settle_s", self.settle_s),
+            ("hold_s", self.hold_s),
+            ("carry_hold_s", self.carry_hold_s),
+            ("after_release_s", self.after_release_s),
+            ("release_after_contact_s", self.release_after_contact_s),
+        ] {
+            in_range(field, value, 0.0, MAX_PHASE_S)?;
         }
+        positive("lift_height_m", self.lift_height_m, 1.0)?;
+        positive("lift_duration_s", self.lift_duration_s, MAX_PHASE_S)?;
+        positive("distance_m", self.distance_m, 100.0)?;
+        positive("speed_mps", self.speed_mps, 2.0)?;
+        positive("accel_mps2", self.accel_mps2, 10.0)?;
+        positive("place_duration_s", self.place_duration_s, MAX_PHASE_S)?;
+        in_range(
+            "approach_height_m",
+            self.approach_height_m,
+            0.0,
+            self.lift_height_m,
+        )?;
+        positive("touchdown_speed_mps", self.touchdown_speed_mps, 1.0)?;
+        in_range("place_press_m", self.place_press_m, 0.0, 0.1)?;
+        positive("along_gain_per_s", self.along_gain_per_s, 100.0)?;
+        positive("heading_gain_per_s", self.heading_gain_per_s, 100.0)?;
+        positive("cross_gain_per_ms", self.cross_gain_per_ms, 100.0)
     }
 }
 
@@ -276,15 +298,13 @@ impl ScriptedController {
         let yaw_rate = (p.heading_gain_per_s * heading
             + p.cross_gain_per_ms * cross * if forward_ref < 0.0 { -1.0 } else { 1.0 })
         .clamp(
-            -cap / scene.wheel_half_track_m(),
-            cap / scene.wheel_half_track_m(),
+            -cap / scene.spec.half_track_m(),
+            cap / scene.spec.half_track_m(),
         );
-        let half_track = scene.wheel_half_track_m();
-        let r = scene.wheel_radius_m();
-        [
-            (v - yaw_rate * half_track) / r,
-            (v + yaw_rate * half_track) / r,
-        ]
+        scene.spec.wheel_velocities(&PlanarVelocity {
+            forward_mps: v,
+            yaw_rate_radps: yaw_rate,
+        })
     }
 }
 
@@ -369,7 +389,7 @@ pub fn run_mission(
                 touched_down = true;
                 summary.touchdown_speed_mps = p.linvel_mps.z;
             }
-            contact_s += 1.0 / scene.config.physics.control_hz;
+            contact_s += 1.0 / scene.config.control_hz;
         }
         tick(phase, &state);
     }
@@ -388,7 +408,7 @@ mod tests {
 
     #[test]
     fn the_plan_lifts_drives_the_distance_and_comes_back_down() {
-        let plan = MissionPlan::default();
+        let plan = MissionPlan::shipped().unwrap();
         let dt = 0.02;
         let steps = (plan.duration_s() / dt) as usize;
         let distance: f64 = (0..steps).map(|k| plan.at(k as f64 * dt).2 * dt).sum();

@@ -18,6 +18,7 @@ pub struct TerrainRandomization {
     /// Largest peak-to-peak height of the perturbation, m (paper: 0.02).
     pub max_peak_to_peak_m: f64,
     /// Range of the correlation length ℓ, m (paper: [0.05, 0.15]).
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
     pub correlation_length_m: [f64; 2],
 }
 

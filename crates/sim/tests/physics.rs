@@ -14,7 +14,7 @@ use moonhaul_sim::scripted::{run_mission, MissionPlan};
 use moonhaul_sim::{BatchEnv, Env, EnvOptions, PayloadKind, SceneModel, SimConfig};
 
 fn scene() -> SceneModel {
-    SceneModel::new(SimConfig::default()).unwrap()
+    SceneModel::new(SimConfig::shipped().unwrap()).unwrap()
 }
 
 #[test]
@@ -23,7 +23,7 @@ fn scripted_mission_is_stable_for_every_payload_with_randomization() {
     // Hold the payload aloft after driving so the grasped part alone spans > 45 s.
     let plan = MissionPlan {
         carry_hold_s: 36.0,
-        ..MissionPlan::default()
+        ..MissionPlan::shipped().unwrap()
     };
     assert!(plan.duration_s() >= 60.0);
     for (seed, payload) in [
@@ -118,7 +118,7 @@ fn end_effector_readout_matches_core_forward_kinematics() {
 
 #[test]
 fn grasps_release_and_break_above_the_configured_limit() {
-    let mut config = SimConfig::default();
+    let mut config = SimConfig::shipped().unwrap();
     config.grasp.break_force_n = 20.0; // below half the box's weight: breaks on lifting
     let scene = SceneModel::new(config).unwrap();
     let options = EnvOptions {
@@ -126,7 +126,7 @@ fn grasps_release_and_break_above_the_configured_limit() {
         payload: Some(PayloadKind::Box),
     };
     let mut env = Env::new(&scene, 0, options).unwrap();
-    let s = run_mission(&scene, &mut env, MissionPlan::default(), |_, _| {}).unwrap();
+    let s = run_mission(&scene, &mut env, MissionPlan::shipped().unwrap(), |_, _| {}).unwrap();
     assert!(s.grasp_broken && s.max_height_m < 0.05, "{s:?}");
 
     let scene = self::scene();

@@ -1,45 +1,35 @@
 //! A unit's CAN drive configuration (`configs/unit_can.toml`): bus timing, and per drive the
-//! joint it moves, its node id, mode of operation and the counts ↔ rad conversion.
+//! joint it moves, its node id, mode of operation and the counts ↔ rad conversion. Read by
+//! core's one loader ([`moonhaul_core::config`]); the SYNC period is the control period of the
+//! `configs/control.toml` the file names, and the drives' joints must be the unit URDF's, in
+//! its order (wheels left, right; arm base to tip).
 
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use moonhaul_core::config::{
+    self, count, in_range, positive, section, ControlConfig, FieldError, Validate,
+};
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
+use moonhaul_core::unit::UnitSpec;
 use serde::Deserialize;
 
 use super::cia402::OperationMode;
 
-/// Why a unit CAN config cannot be used; every variant names the file, validation errors also
-/// the field.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("cannot read {}", path.display())]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{}: {source}", path.display())]
-    Parse {
-        path: PathBuf,
-        #[source]
-        source: toml::de::Error,
-    },
-    #[error("{}: field `{field}`: {reason}", path.display())]
-    Invalid {
-        path: PathBuf,
-        field: String,
-        reason: String,
-    },
-}
+pub use moonhaul_core::config::ConfigError;
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct UnitCanConfig {
+    /// The control-rate file (`configs/control.toml`), relative to this file's folder.
+    pub control: PathBuf,
+    /// The unit URDF whose joints the drives move, relative to this file's folder.
+    pub unit_urdf: PathBuf,
     /// SocketCAN interface name, e.g. `can0`.
     pub interface: String,
-    /// SYNC period = control period, s.
+    /// SYNC period = control period, s: from `control` when the file is loaded.
+    #[serde(skip)]
     pub sync_period_s: f64,
     /// Heartbeat producer time written to each drive's 0x1017, ms.
     pub heartbeat_producer_ms: u16,
@@ -52,8 +42,10 @@ pub struct UnitCanConfig {
     /// Enable, disable and fault reset fail when drives need longer, s.
     pub state_change_timeout_s: f64,
     /// Left, right.
+    #[serde(deserialize_with = "config::exact_array")]
     pub wheels: [DriveConfig; WHEEL_JOINTS],
     /// Base to tip.
+    #[serde(deserialize_with = "config::exact_array")]
     pub arm: [DriveConfig; ARM_JOINTS],
     /// Behaviour of the emulated drives (`moonhaul can emulate`, tests); ignored on real buses.
     pub emulator: EmulatorConfig,
@@ -97,29 +89,15 @@ pub struct EmulatorConfig {
 }
 
 impl UnitCanConfig {
+    /// Reads and validates a unit's CAN config, its control rate and the URDF joints it
+    /// names; errors name the file and the field.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_owned(),
-            source,
-        })?;
-        Self::from_toml(&text, path)
+        config::load(path.as_ref())
     }
 
-    /// Parses and validates; `path` only names the source in errors.
+    /// Parses and validates; `path` names the source in errors and anchors relative paths.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let config: UnitCanConfig = toml::from_str(text).map_err(|source| ConfigError::Parse {
-            path: path.to_owned(),
-            source,
-        })?;
-        config
-            .validate()
-            .map_err(|(field, reason)| ConfigError::Invalid {
-                path: path.to_owned(),
-                field,
-                reason,
-            })?;
-        Ok(config)
+        config::parse(text, path)
     }
 
     /// Wheels then arm: the order of the nine drives everywhere in this crate.
@@ -131,35 +109,105 @@ impl UnitCanConfig {
         Duration::from_secs_f64(self.sync_period_s)
     }
 
-    fn validate(&self) -> Result<(), (String, String)> {
-        let positive = |field: &str, value: f64| {
-            if value > 0.0 && Duration::try_from_secs_f64(value).is_ok() {
-                Ok(())
-            } else {
-                Err((
-                    field.to_owned(),
-                    format!("must be a positive number of seconds, got {value}"),
-                ))
+    /// The drives' joints must be `spec`'s, in its order; the error names both.
+    pub fn check_joints(&self, spec: &UnitSpec) -> Result<(), FieldError> {
+        let sides = [
+            ("wheels", &self.wheels[..], &spec.wheel_joints[..]),
+            ("arm", &self.arm[..], &spec.arm_joints[..]),
+        ];
+        for (side, drives, joints) in sides {
+            for (i, (drive, joint)) in drives.iter().zip(joints).enumerate() {
+                if drive.joint != *joint {
+                    return Err(FieldError::new(
+                        format!("{side}[{i}].joint"),
+                        format!(
+                            "\"{}\" is not the unit URDF's {side} joint {i}, \"{joint}\"",
+                            drive.joint
+                        ),
+                    ));
+                }
             }
-        };
-        positive("sync_period_s", self.sync_period_s)?;
-        positive("heartbeat_timeout_s", self.heartbeat_timeout_s)?;
-        positive("feedback_timeout_s", self.feedback_timeout_s)?;
-        positive("sdo_timeout_s", self.sdo_timeout_s)?;
-        positive("state_change_timeout_s", self.state_change_timeout_s)?;
-        positive("emulator.time_constant_s", self.emulator.time_constant_s)?;
-        positive("emulator.step_s", self.emulator.step_s)?;
-        if !(self.emulator.inertia_kgm2.is_finite() && self.emulator.inertia_kgm2 >= 0.0) {
-            return Err(("emulator.inertia_kgm2".into(), "must be ≥ 0".into()));
         }
-        if self.heartbeat_producer_ms == 0
-            || f64::from(self.heartbeat_producer_ms) / 1000.0 >= self.heartbeat_timeout_s
-        {
-            return Err((
-                "heartbeat_producer_ms".into(),
-                "must be positive and shorter than heartbeat_timeout_s".into(),
+        Ok(())
+    }
+}
+
+/// Longest time-out, s: a drive silent for a minute is gone, not slow.
+const MAX_TIMEOUT_S: f64 = 60.0;
+
+impl Validate for UnitCanConfig {
+    fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
+        self.sync_period_s = ControlConfig::load_referenced(path, &self.control)?.period_s();
+        self.unit_urdf = config::resolve(path, &self.unit_urdf);
+        let spec = UnitSpec::from_file(&self.unit_urdf).map_err(|e| ConfigError::Invalid {
+            path: path.to_owned(),
+            error: FieldError::new("unit_urdf", e.to_string()),
+        })?;
+        self.check_joints(&spec)
+            .map_err(|error| ConfigError::Invalid {
+                path: path.to_owned(),
+                error,
+            })
+    }
+
+    fn validate(&self) -> Result<(), FieldError> {
+        if self.interface.is_empty() || self.interface.len() > 15 {
+            // IFNAMSIZ - 1: Linux interface names have at most 15 bytes.
+            return Err(FieldError::new(
+                "interface",
+                format!("{:?} must have 1 to 15 bytes", self.interface),
             ));
         }
+        let period = self.sync_period_s;
+        count(
+            "heartbeat_producer_ms",
+            self.heartbeat_producer_ms.into(),
+            1,
+            10_000,
+        )?;
+        let producer_s = f64::from(self.heartbeat_producer_ms) / 1000.0;
+        // Each watchdog must outlast what it watches, or healthy drives fault.
+        in_range(
+            "heartbeat_timeout_s",
+            self.heartbeat_timeout_s,
+            producer_s,
+            MAX_TIMEOUT_S,
+        )
+        .and_then(|()| {
+            strictly_longer(
+                "heartbeat_timeout_s",
+                self.heartbeat_timeout_s,
+                producer_s,
+                "heartbeat_producer_ms",
+            )
+        })?;
+        in_range(
+            "feedback_timeout_s",
+            self.feedback_timeout_s,
+            period,
+            MAX_TIMEOUT_S,
+        )
+        .and_then(|()| {
+            strictly_longer(
+                "feedback_timeout_s",
+                self.feedback_timeout_s,
+                period,
+                "the control period",
+            )
+        })?;
+        positive("sdo_timeout_s", self.sdo_timeout_s, MAX_TIMEOUT_S)?;
+        positive(
+            "state_change_timeout_s",
+            self.state_change_timeout_s,
+            MAX_TIMEOUT_S,
+        )?;
+        section("emulator", || {
+            let e = &self.emulator;
+            positive("time_constant_s", e.time_constant_s, 10.0)?;
+            in_range("inertia_kgm2", e.inertia_kgm2, 0.0, 100.0)?;
+            // The virtual clock advances by at least 1 µs and at most one control period.
+            in_range("step_s", e.step_s, 1e-6, period)
+        })?;
         let mut seen = [false; 128];
         let sides = [
             ("wheels", &self.wheels[..], OperationMode::Csv),
@@ -167,37 +215,40 @@ impl UnitCanConfig {
         ];
         for (side, drives, mode) in sides {
             for (i, drive) in drives.iter().enumerate() {
-                let field = |name: &str| format!("{side}[{i}].{name}");
-                if !(1..=127).contains(&drive.node_id) {
-                    return Err((
-                        field("node_id"),
-                        format!("{} is not in 1..=127", drive.node_id),
-                    ));
-                }
-                if std::mem::replace(&mut seen[usize::from(drive.node_id)], true) {
-                    return Err((
-                        field("node_id"),
-                        format!("node {} is used twice", drive.node_id),
-                    ));
-                }
-                if drive.mode != mode {
-                    return Err((field("mode"), format!("{side} drives must use {mode:?}")));
-                }
-                if drive.counts_per_rev == 0 {
-                    return Err((field("counts_per_rev"), "must be positive".into()));
-                }
-                if !(drive.gear_ratio.is_finite() && drive.gear_ratio > 0.0) {
-                    return Err((field("gear_ratio"), "must be a positive number".into()));
-                }
-                if drive
-                    .rated_torque_nm
-                    .is_some_and(|t| !(t.is_finite() && t > 0.0))
-                {
-                    return Err((field("rated_torque_nm"), "must be a positive number".into()));
-                }
+                section(&format!("{side}[{i}]"), || {
+                    count("node_id", drive.node_id.into(), 1, 127)?;
+                    if std::mem::replace(&mut seen[usize::from(drive.node_id)], true) {
+                        return Err(FieldError::new(
+                            "node_id",
+                            format!("node {} is used twice", drive.node_id),
+                        ));
+                    }
+                    if drive.mode != mode {
+                        return Err(FieldError::new(
+                            "mode",
+                            format!("{side} drives must use {mode:?}"),
+                        ));
+                    }
+                    count("counts_per_rev", drive.counts_per_rev.into(), 1, 1 << 24)?;
+                    positive("gear_ratio", drive.gear_ratio, 10_000.0)?;
+                    drive
+                        .rated_torque_nm
+                        .map_or(Ok(()), |t| positive("rated_torque_nm", t, 1000.0))
+                })?;
             }
         }
         Ok(())
+    }
+}
+
+fn strictly_longer(field: &str, value: f64, than: f64, what: &str) -> Result<(), FieldError> {
+    if value > than {
+        Ok(())
+    } else {
+        Err(FieldError::new(
+            field,
+            format!("{value} s must be longer than {what} ({than} s)"),
+        ))
     }
 }
 
@@ -251,7 +302,10 @@ pub(crate) mod tests {
     fn with(replace: &str, by: &str) -> Result<UnitCanConfig, ConfigError> {
         let text = std::fs::read_to_string(UNIT_CAN).unwrap();
         assert!(text.contains(replace), "{replace}");
-        UnitCanConfig::from_toml(&text.replacen(replace, by, 1), Path::new("unit_can.toml"))
+        UnitCanConfig::from_toml(
+            &text.replacen(replace, by, 1),
+            &config::repo_file("configs/unit_can.toml"),
+        )
     }
 
     #[test]
@@ -272,7 +326,7 @@ pub(crate) mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("arm[0].mode"), "{err}");
-        let err = with("sync_period_s", "bogus = 1\nsync_period_s")
+        let err = with("heartbeat_producer_ms", "bogus = 1\nheartbeat_producer_ms")
             .unwrap_err()
             .to_string();
         assert!(
@@ -287,6 +341,29 @@ pub(crate) mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("sdo_timeout_s"), "{err}");
+        // The drives' joints are the URDF's: a rename names both.
+        let err = with("joint = \"arm_joint_3\"", "joint = \"elbow\"")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("arm[2].joint") && err.contains("elbow") && err.contains("arm_joint_3"),
+            "{err}"
+        );
+        // An eighth arm drive is an error, not silently dropped.
+        let extra = "[[arm]]\njoint = \"arm_joint_8\"\nnode_id = 10\nmode = \"csp\"\n\
+                     counts_per_rev = 16384\ngear_ratio = 50.0\ndirection = \"normal\"\n\
+                     rated_torque_nm = 0.32\n\n# Emulated drives";
+        let err = with("# Emulated drives", extra).unwrap_err().to_string();
+        assert!(err.contains("arm") && err.contains("8"), "{err}");
+        // A watchdog shorter than what it watches.
+        let err = with("feedback_timeout_s = 0.1", "feedback_timeout_s = 0.01")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("feedback_timeout_s"), "{err}");
+        let err = with("heartbeat_producer_ms = 100", "heartbeat_producer_ms = 400")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("heartbeat_timeout_s"), "{err}");
         let err = UnitCanConfig::from_file("/nonexistent/unit.toml")
             .unwrap_err()
             .to_string();
