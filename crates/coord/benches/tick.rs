@@ -1,5 +1,5 @@
 //! Per-tick time of the coordination layer for a team of two: the phase gate with team
-//! agreement, then the synchronization clamp, on the Panda test unit (see tests/data).
+//! agreement, then the synchronization clamp, on the shipped unit (assets/unit.urdf).
 //! Prints figures; asserts nothing about time. Run: `cargo bench -p moonhaul-coord`.
 
 use moonhaul_coord::gate::Measurements;
@@ -9,18 +9,17 @@ use moonhaul_coord::message::{
 use moonhaul_coord::{Clamp, ClampInput, GateConfig, SyncConfig, Team, TeamSettings, UnitModel};
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState};
 use std::hint::black_box;
-use std::path::Path;
 use std::time::Instant;
 
 const PERIOD_US: u64 = 20_000;
 const TICKS: u32 = 20_000;
 
 fn main() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/panda_unit.toml");
-    let model = match UnitModel::from_file(&path) {
+    let path = moonhaul_core::config::repo_file("assets/unit.urdf");
+    let model = match UnitModel::from_urdf(&path) {
         Ok(model) => model,
         Err(e) => {
-            eprintln!("cannot load the test unit: {e}");
+            eprintln!("cannot load the unit: {e}");
             std::process::exit(1);
         }
     };
@@ -63,7 +62,7 @@ fn main() {
     for (name, previous, target) in scenarios {
         let mut team = running_team();
         let mut peer = peer_state(1_000_000, Phase::Lift);
-        let mut clamp = match Clamp::new(model.clone(), &SyncConfig::default(), 0.02, 2) {
+        let mut clamp = match Clamp::new(model.clone(), &SyncConfig::shipped().unwrap(), 0.02, 2) {
             Ok(clamp) => clamp,
             Err(e) => {
                 eprintln!("cannot build the clamp: {e}");
@@ -113,7 +112,7 @@ fn running_team() -> Team {
         control_period_us: PERIOD_US,
         peer_staleness_periods: 3,
     };
-    let mut team = match Team::new(settings, &GateConfig::default()) {
+    let mut team = match Team::new(settings, &GateConfig::shipped().unwrap()) {
         Ok(team) => team,
         Err(e) => {
             eprintln!("bad team settings: {e}");

@@ -95,7 +95,7 @@ pub enum ClampError {
     #[error("a team needs at least one unit")]
     EmptyTeam,
     #[error(transparent)]
-    Config(#[from] crate::config::InvalidConfig),
+    Config(#[from] moonhaul_core::config::FieldError),
     #[error(transparent)]
     Kinematics(#[from] KinematicsError),
     #[error(transparent)]
@@ -144,7 +144,7 @@ impl Clamp {
         control_period_s: f64,
         team_size: usize,
     ) -> Result<Self, ClampError> {
-        crate::config::Validate::validate(config)?;
+        moonhaul_core::config::Validate::validate(config)?;
         if !(control_period_s.is_finite() && control_period_s > 0.0) {
             return Err(ClampError::Period(control_period_s));
         }
@@ -304,7 +304,7 @@ impl Clamp {
             .zip(commands)
         {
             let command = interpolate_command(prev, target, t);
-            let base = self.model.integrate_base(
+            let base = self.model.spec().integrate_base(
                 &s.base_pose,
                 &command.wheel_velocity_radps,
                 self.control_period_s,

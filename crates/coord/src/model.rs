@@ -7,27 +7,11 @@
 //! configured mount pose in the base frame. Every unit of a team is the same module pair (as in
 //! the paper), so one model serves all of them.
 
-use crate::config::{self, ConfigError, UnitModelConfig};
-use moonhaul_core::kinematics::{Chain, KinematicTree, KinematicsError};
-use moonhaul_core::state::{PlanarPose, PlanarVelocity, UnitCommand, ARM_JOINTS, WHEEL_JOINTS};
+use moonhaul_core::kinematics::KinematicsError;
+use moonhaul_core::state::{PlanarPose, UnitCommand, ARM_JOINTS};
+use moonhaul_core::unit::{UnitSpec, UnitSpecError};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::path::Path;
-
-/// Why a unit model cannot be built.
-#[derive(Debug, thiserror::Error)]
-pub enum ModelError {
-    #[error("arm URDF: {0}")]
-    Kinematics(#[from] KinematicsError),
-    #[error("arm chain {base} -> {tip} has {got} movable joints; a unit's arm has {expected}")]
-    ArmDof {
-        base: String,
-        tip: String,
-        got: usize,
-        expected: usize,
-    },
-    #[error(transparent)]
-    Invalid(#[from] config::InvalidConfig),
-}
 
 /// Upper bounds on the change of one unit's task-space image per unit of the interpolation
 /// parameter t (see [`UnitModel::image_rate_bounds`]).
@@ -41,90 +25,34 @@ pub struct ImageRates {
     pub arm_rotation_rad: f64,
 }
 
-/// The kinematics of one wheel–arm unit.
+/// The kinematics of one wheel–arm unit, from its [`UnitSpec`].
 #[derive(Debug, Clone)]
 pub struct UnitModel {
-    arm: Chain,
-    /// [`Chain::reach_bound_m`] of `arm`, computed once.
+    spec: UnitSpec,
+    /// [`moonhaul_core::kinematics::Chain::reach_bound_m`] of the arm, computed once.
     arm_reach_m: f64,
+    /// The root (wheel-base) link in the ground frame.
     mount: Isometry3<f64>,
-    wheel_radius_m: f64,
-    wheel_track_m: f64,
 }
 
 impl UnitModel {
-    /// Reads a unit-model file and the URDF it names (relative to the file's directory).
-    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let cfg: UnitModelConfig = config::load(path)?;
-        let urdf = path.parent().unwrap_or(Path::new(".")).join(&cfg.urdf);
-        let model = KinematicTree::from_file(&urdf)
-            .map_err(ModelError::from)
-            .and_then(|tree| Self::from_tree(&tree, &cfg));
-        model.map_err(|source| ConfigError::Model {
-            path: path.to_owned(),
-            source,
-        })
-    }
-
-    /// Builds the model from an already loaded arm URDF.
-    pub fn from_tree(tree: &KinematicTree, cfg: &UnitModelConfig) -> Result<Self, ModelError> {
-        config::Validate::validate(cfg)?;
-        let arm = tree.chain(&cfg.arm_base_link, &cfg.arm_tip_link)?;
-        if arm.dof() != ARM_JOINTS {
-            return Err(ModelError::ArmDof {
-                base: cfg.arm_base_link.clone(),
-                tip: cfg.arm_tip_link.clone(),
-                got: arm.dof(),
-                expected: ARM_JOINTS,
-            });
-        }
-        let [x, y, z] = cfg.arm_mount_xyz_m;
-        let [roll, pitch, yaw] = cfg.arm_mount_rpy_rad;
-        Ok(UnitModel {
-            arm_reach_m: arm.reach_bound_m(),
-            arm,
-            mount: Isometry3::from_parts(
-                Translation3::new(x, y, z),
-                UnitQuaternion::from_euler_angles(roll, pitch, yaw),
-            ),
-            wheel_radius_m: cfg.wheel_radius_m,
-            wheel_track_m: cfg.wheel_track_m,
-        })
-    }
-
-    /// Forward speed and yaw rate of the base for wheel velocities `[left, right]`.
-    pub fn base_velocity(&self, wheel_radps: &[f64; WHEEL_JOINTS]) -> PlanarVelocity {
-        let [left, right] = *wheel_radps;
-        PlanarVelocity {
-            forward_mps: self.wheel_radius_m * (left + right) / 2.0,
-            yaw_rate_radps: self.wheel_radius_m * (right - left) / self.wheel_track_m,
+    /// The model of the unit `spec` describes.
+    pub fn new(spec: UnitSpec) -> Self {
+        UnitModel {
+            arm_reach_m: spec.arm.reach_bound_m(),
+            mount: spec.ground_to_base(),
+            spec,
         }
     }
 
-    /// The base pose after holding wheel velocities `[left, right]` for `dt_s` from `pose`:
-    /// the exact unicycle arc, whose chord is v·dt·sinc(Δψ/2) along the mean heading.
-    pub fn integrate_base(
-        &self,
-        pose: &PlanarPose,
-        wheel_radps: &[f64; WHEEL_JOINTS],
-        dt_s: f64,
-    ) -> PlanarPose {
-        let v = self.base_velocity(wheel_radps);
-        let turn_rad = v.yaw_rate_radps * dt_s;
-        let half = turn_rad / 2.0;
-        // sin(x)/x with its Taylor form near 0, where the quotient loses precision.
-        let sinc = if half.abs() < 1e-4 {
-            1.0 - half * half / 6.0
-        } else {
-            half.sin() / half
-        };
-        let chord_m = v.forward_mps * dt_s * sinc;
-        let heading = pose.yaw_rad + half;
-        PlanarPose {
-            x_m: pose.x_m + chord_m * heading.cos(),
-            y_m: pose.y_m + chord_m * heading.sin(),
-            yaw_rad: pose.yaw_rad + turn_rad,
-        }
+    /// Reads the unit URDF (`assets/unit.urdf`).
+    pub fn from_urdf(path: &Path) -> Result<Self, UnitSpecError> {
+        UnitSpec::from_file(path).map(Self::new)
+    }
+
+    /// The unit description the model is built on.
+    pub fn spec(&self) -> &UnitSpec {
+        &self.spec
     }
 
     /// Bounds on how fast the task-space image of the interpolated command
@@ -137,8 +65,8 @@ impl UnitModel {
     /// and Σⱼ|Δqⱼ|·max(reach, 1) from the arm joints; it rotates at most T·|Δω| + Σⱼ|Δqⱼ|.
     pub fn image_rate_bounds(&self, from: &UnitCommand, to: &UnitCommand, dt_s: f64) -> ImageRates {
         let (v0, v1) = (
-            self.base_velocity(&from.wheel_velocity_radps),
-            self.base_velocity(&to.wheel_velocity_radps),
+            self.spec.base_velocity(&from.wheel_velocity_radps),
+            self.spec.base_velocity(&to.wheel_velocity_radps),
         );
         let dv = (v1.forward_mps - v0.forward_mps).abs();
         let dw = (v1.yaw_rate_radps - v0.yaw_rate_radps).abs();
@@ -169,25 +97,24 @@ impl UnitModel {
             Translation3::new(base.x_m, base.y_m, 0.0),
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), base.yaw_rad),
         );
-        Ok(base * self.mount * self.arm.forward(arm_rad)?)
+        Ok(base * self.mount * self.spec.arm.forward(arm_rad)?)
     }
 
     /// Position limits of the arm joints, base to tip (rad).
     pub fn arm_limits_rad(&self) -> impl ExactSizeIterator<Item = (f64, f64)> + '_ {
-        self.arm.limits().map(|l| (l.lower, l.upper))
+        self.spec.arm_limits.iter().map(|l| (l.lower, l.upper))
     }
 }
 
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use moonhaul_core::config::repo_file;
     use std::f64::consts::FRAC_PI_2;
 
-    /// The test unit: the Franka Panda (panda_link0 → panda_hand) on a plausible wheel module
-    /// (r = 0.1 m, track 0.4 m), mounted 0.3 m up and 0.1 m forward.
-    pub(crate) fn panda_unit() -> UnitModel {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/panda_unit.toml");
-        UnitModel::from_file(&path).unwrap()
+    /// The shipped unit (`assets/unit.urdf`): wheel radius 0.1 m, track 0.56 m.
+    pub(crate) fn shipped_unit() -> UnitModel {
+        UnitModel::from_urdf(&repo_file("assets/unit.urdf")).unwrap()
     }
 
     fn pose(x_m: f64, y_m: f64, yaw_rad: f64) -> PlanarPose {
@@ -196,26 +123,42 @@ pub(crate) mod tests {
 
     #[test]
     fn differential_drive_straight_spin_and_arc() {
-        let m = panda_unit();
-        // 5 rad/s on both wheels: 0.5 m/s straight ahead along the heading.
-        let p = m.integrate_base(&pose(1.0, 2.0, FRAC_PI_2), &[5.0, 5.0], 0.02);
+        let m = shipped_unit();
+        let (r, track) = (m.spec().wheel_radius_m, m.spec().wheel_track_m);
+        // 5 rad/s on both wheels: 5r m/s straight ahead along the heading.
+        let p = m
+            .spec()
+            .integrate_base(&pose(1.0, 2.0, FRAC_PI_2), &[5.0, 5.0], 0.02);
         assert!(
-            (p.x_m - 1.0).abs() < 1e-15 && (p.y_m - 2.01).abs() < 1e-12 && p.yaw_rad == FRAC_PI_2
+            (p.x_m - 1.0).abs() < 1e-15
+                && (p.y_m - (2.0 + 0.1 * r)).abs() < 1e-12
+                && p.yaw_rad == FRAC_PI_2
         );
-        // Opposite wheels: turn on the spot at r·2ω/track = 2.5 rad/s.
-        let p = m.integrate_base(&pose(0.0, 0.0, 0.0), &[-5.0, 5.0], 0.02);
-        assert!(p.x_m.abs() < 1e-15 && p.y_m.abs() < 1e-15 && (p.yaw_rad - 0.05).abs() < 1e-15);
-        // A quarter circle: v = 0.3 m/s, ω = 1 rad/s → radius 0.3 m, ends at (0.3, 0.3).
-        let m_v = m.base_velocity(&[1.0, 5.0]);
-        assert!((m_v.forward_mps - 0.3).abs() < 1e-15 && (m_v.yaw_rate_radps - 1.0).abs() < 1e-15);
-        let p = m.integrate_base(&pose(0.0, 0.0, 0.0), &[1.0, 5.0], FRAC_PI_2);
+        // Opposite wheels: turn on the spot at r·2ω/track.
+        let p = m
+            .spec()
+            .integrate_base(&pose(0.0, 0.0, 0.0), &[-5.0, 5.0], 0.02);
+        let turn = r * 10.0 / track * 0.02;
+        assert!(p.x_m.abs() < 1e-15 && p.y_m.abs() < 1e-15 && (p.yaw_rad - turn).abs() < 1e-15);
+        // A quarter circle ends at (R, R) for turning radius R = v/ω.
+        let v = m.spec().base_velocity(&[1.0, 5.0]);
+        assert!((v.forward_mps - 3.0 * r).abs() < 1e-15);
+        assert!((v.yaw_rate_radps - 4.0 * r / track).abs() < 1e-15);
+        let radius = v.forward_mps / v.yaw_rate_radps;
+        let p = m.spec().integrate_base(
+            &pose(0.0, 0.0, 0.0),
+            &[1.0, 5.0],
+            FRAC_PI_2 / v.yaw_rate_radps,
+        );
         assert!(
-            (p.x_m - 0.3).abs() < 1e-12 && (p.y_m - 0.3).abs() < 1e-12,
+            (p.x_m - radius).abs() < 1e-12 && (p.y_m - radius).abs() < 1e-12,
             "{p:?}"
         );
         // The small-angle branch agrees with the exact one at the switch-over.
-        let a = m.integrate_base(&pose(0.0, 0.0, 0.3), &[2.0, 2.0 + 1.6e-3], 0.5);
-        let b = m.integrate_base(
+        let a = m
+            .spec()
+            .integrate_base(&pose(0.0, 0.0, 0.3), &[2.0, 2.0 + 1.6e-3], 0.5);
+        let b = m.spec().integrate_base(
             &pose(0.0, 0.0, 0.3),
             &[2.0, 2.0 + 1.6e-3 * (1.0 + 1e-9)],
             0.5,
@@ -225,7 +168,7 @@ pub(crate) mod tests {
 
     #[test]
     fn end_effector_follows_base_and_mount() {
-        let m = panda_unit();
+        let m = shipped_unit();
         let q = [0.0, -0.5, 0.0, -2.0, 0.0, 1.5, 0.8];
         let at_origin = m.arm_world_pose(&pose(0.0, 0.0, 0.0), &q).unwrap();
         let moved = m.arm_world_pose(&pose(1.0, -2.0, FRAC_PI_2), &q).unwrap();
@@ -234,42 +177,11 @@ pub(crate) mod tests {
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), FRAC_PI_2),
         ) * at_origin;
         assert!((moved.translation.vector - expected.translation.vector).norm() < 1e-12);
-        // Mount height 0.3 m plus the Panda's ~0.33 m shoulder: the hand is well above ground.
-        assert!(at_origin.translation.z > 0.3, "{at_origin}");
-    }
-
-    #[test]
-    fn bad_models_are_named() {
-        let dir = tempfile::tempdir().unwrap();
-        let urdf =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../core/tests/data/panda.urdf");
-        let base = format!(
-            "urdf = {urdf:?}\narm_base_link = \"panda_link0\"\narm_mount_xyz_m = [0.1, 0.0, 0.3]\n\
-             arm_mount_rpy_rad = [0.0, 0.0, 0.0]\nwheel_radius_m = 0.1\n"
+        // The ground frame: FK from the root plus the root's height above the ground.
+        let from_root = m.spec().arm.forward(&q).unwrap();
+        assert!(
+            (at_origin.translation.z - from_root.translation.z - m.spec().base_height_m).abs()
+                < 1e-12
         );
-        let cases = [
-            (
-                "arm_tip_link = \"panda_link5\"\nwheel_track_m = 0.4\n",
-                "5 movable joints",
-            ),
-            (
-                "arm_tip_link = \"gripper\"\nwheel_track_m = 0.4\n",
-                "gripper",
-            ),
-            (
-                "arm_tip_link = \"panda_hand\"\nwheel_track_m = 0.0\n",
-                "wheel_track_m",
-            ),
-            ("arm_tip_link = \"panda_hand\"\n", "wheel_track_m"),
-        ];
-        for (i, (extra, needle)) in cases.into_iter().enumerate() {
-            let path = dir.path().join(format!("unit{i}.toml"));
-            std::fs::write(&path, format!("{base}{extra}")).unwrap();
-            let message = UnitModel::from_file(&path).unwrap_err().to_string();
-            assert!(
-                message.contains(needle) && message.contains("unit"),
-                "{message}"
-            );
-        }
     }
 }

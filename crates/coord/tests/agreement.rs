@@ -41,7 +41,7 @@ struct SimUnit {
 impl Sim {
     fn new(n: usize, seed: u64, drop_probability: f64, max_delay_ticks: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let gate = GateConfig::default();
+        let gate = GateConfig::shipped().unwrap();
         let units = (0..n)
             .map(|i| {
                 let settings = TeamSettings {
@@ -272,7 +272,10 @@ fn perfect_network_completes_the_mission_in_lockstep() {
 
 #[test]
 fn delayed_dropped_reordered_messages_never_split_the_team() {
-    let window = GateConfig::default().agreement.pending_window_ticks as usize;
+    let window = GateConfig::shipped()
+        .unwrap()
+        .agreement
+        .pending_window_ticks as usize;
     let max_delay = 2;
     let mut completed = 0;
     let mut reordered = 0;

@@ -11,7 +11,6 @@ use moonhaul_coord::{
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::path::Path;
 
 struct Counting;
 
@@ -68,8 +67,8 @@ fn peer(stamp_us: u64, phase: Phase, propose: Option<Transition>) -> Envelope {
 
 #[test]
 fn gate_agreement_and_clamp_do_not_allocate_per_tick() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/panda_unit.toml");
-    let model = UnitModel::from_file(&path).unwrap();
+    let path = moonhaul_core::config::repo_file("assets/unit.urdf");
+    let model = UnitModel::from_urdf(&path).unwrap();
     let settings = TeamSettings {
         team: "moonhaul".into(),
         team_size: 2,
@@ -77,8 +76,8 @@ fn gate_agreement_and_clamp_do_not_allocate_per_tick() {
         control_period_us: PERIOD_US,
         peer_staleness_periods: 3,
     };
-    let mut team = Team::new(settings, &GateConfig::default()).unwrap();
-    let mut clamp = Clamp::new(model, &SyncConfig::default(), 0.02, 2).unwrap();
+    let mut team = Team::new(settings, &GateConfig::shipped().unwrap()).unwrap();
+    let mut clamp = Clamp::new(model, &SyncConfig::shipped().unwrap(), 0.02, 2).unwrap();
     let home = [0.0, -0.4, 0.0, -2.0, 0.0, 1.6, 0.8];
     let mut sensed = [UnitState::default(); 2];
     for (i, s) in sensed.iter_mut().enumerate() {

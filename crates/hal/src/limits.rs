@@ -7,8 +7,9 @@
 //! reading beyond the URDF effort limit is always an error: a measurement cannot be clamped.
 //! Arm velocity limits bound the step between consecutive position commands over one period.
 
-use moonhaul_core::kinematics::{JointLimits, KinematicTree};
+use moonhaul_core::kinematics::JointLimits;
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
+use moonhaul_core::unit::UnitSpec;
 use std::time::Duration;
 
 use crate::{check_finite, ArmDrive, Drive, HalError, JointReading, Quantity, WheelDrive};
@@ -22,15 +23,6 @@ pub enum LimitPolicy {
     Reject,
 }
 
-/// Why limits cannot be taken from a URDF.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum LimitsError {
-    #[error("joint \"{joint}\" is not in the URDF")]
-    UnknownJoint { joint: String },
-    #[error("joint \"{joint}\" is fixed and cannot be driven")]
-    FixedJoint { joint: String },
-}
-
 /// Limits of N driven joints, in the driver's joint order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointLimitSet<const N: usize> {
@@ -38,33 +30,27 @@ pub struct JointLimitSet<const N: usize> {
     pub limits: [JointLimits; N],
 }
 
-impl<const N: usize> JointLimitSet<N> {
-    /// Looks the named joints up in a URDF tree.
-    pub fn from_urdf(tree: &KinematicTree, names: [&str; N]) -> Result<Self, LimitsError> {
-        let mut limits = [JointLimits {
-            lower: 0.0,
-            upper: 0.0,
-            effort: 0.0,
-            velocity: 0.0,
-        }; N];
-        for (slot, name) in limits.iter_mut().zip(names) {
-            let joint = tree.joint(name).ok_or_else(|| LimitsError::UnknownJoint {
-                joint: name.to_owned(),
-            })?;
-            let motion = joint
-                .motion
-                .as_ref()
-                .ok_or_else(|| LimitsError::FixedJoint {
-                    joint: name.to_owned(),
-                })?;
-            *slot = motion.limits;
+impl JointLimitSet<WHEEL_JOINTS> {
+    /// The wheels' limits from the unit's URDF, left then right.
+    pub fn wheels(spec: &UnitSpec) -> Self {
+        JointLimitSet {
+            names: spec.wheel_joints.clone(),
+            limits: spec.wheel_limits,
         }
-        Ok(JointLimitSet {
-            names: names.map(str::to_owned),
-            limits,
-        })
     }
+}
 
+impl JointLimitSet<ARM_JOINTS> {
+    /// The arm joints' limits from the unit's URDF, base to tip.
+    pub fn arm(spec: &UnitSpec) -> Self {
+        JointLimitSet {
+            names: spec.arm_joints.clone(),
+            limits: spec.arm_limits,
+        }
+    }
+}
+
+impl<const N: usize> JointLimitSet<N> {
     /// Applies `policy` to `values`, each within `[bound(l).0, bound(l).1]`.
     fn apply(
         &self,
@@ -240,21 +226,19 @@ mod tests {
     use super::*;
     use crate::mock::{MockConfig, MockDrive, Response};
 
-    const PANDA: &str = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../core/tests/data/panda.urdf"
-    );
     const PERIOD: Duration = Duration::from_millis(20);
 
-    fn panda_limits() -> JointLimitSet<ARM_JOINTS> {
-        let tree = KinematicTree::from_file(PANDA).unwrap();
-        let names: [String; ARM_JOINTS] = std::array::from_fn(|i| format!("panda_joint{}", i + 1));
-        JointLimitSet::from_urdf(&tree, names.each_ref().map(String::as_str)).unwrap()
+    fn unit() -> UnitSpec {
+        UnitSpec::from_file(&moonhaul_core::config::repo_file("assets/unit.urdf")).unwrap()
     }
 
-    /// A Panda-like arm mock, enabled, at the middle of every joint's range.
+    fn arm_limits() -> JointLimitSet<ARM_JOINTS> {
+        JointLimitSet::arm(&unit())
+    }
+
+    /// The shipped unit's arm as a mock, enabled, at the middle of every joint's range.
     fn arm(policy: LimitPolicy) -> Limited<MockDrive<ARM_JOINTS>> {
-        let limits = panda_limits();
+        let limits = arm_limits();
         let names = limits.names.clone();
         let config = MockConfig {
             response: Response::FirstOrder {
@@ -272,32 +256,29 @@ mod tests {
 
     #[test]
     fn limits_come_from_the_urdf() {
-        let limits = panda_limits();
-        assert_eq!(limits.names[3], "panda_joint4");
-        assert_eq!(limits.limits[3].upper, 0.0);
-        assert!((limits.limits[0].velocity - 2.175).abs() < 1e-9);
-        assert!((limits.limits[0].effort - 87.0).abs() < 1e-9);
-        let tree = KinematicTree::from_file(PANDA).unwrap();
-        let err = JointLimitSet::from_urdf(&tree, ["panda_joint8"]).unwrap_err();
-        assert_eq!(
-            err.to_string(),
-            "joint \"panda_joint8\" is fixed and cannot be driven"
-        );
-        let err = JointLimitSet::from_urdf(&tree, ["nope"]).unwrap_err();
-        assert!(matches!(err, LimitsError::UnknownJoint { .. }));
+        let limits = arm_limits();
+        // The values of assets/unit.urdf (after the KUKA iiwa 14).
+        assert_eq!(limits.names[3], "arm_joint_4");
+        assert!((limits.limits[3].upper - 2.0944).abs() < 1e-9);
+        assert!((limits.limits[0].velocity - 1.48353).abs() < 1e-9);
+        assert!((limits.limits[0].effort - 320.0).abs() < 1e-9);
+        let wheels = JointLimitSet::wheels(&unit());
+        assert_eq!(wheels.names, ["wheel_left_joint", "wheel_right_joint"]);
+        assert_eq!(wheels.limits[0].upper, f64::INFINITY);
+        assert!((wheels.limits[1].velocity - 10.0).abs() < 1e-9);
     }
 
     #[test]
     fn reject_names_the_joint_beyond_its_position_limit() {
         let mut arm = arm(LimitPolicy::Reject);
         let mut command = arm.read_arm().unwrap().position_rad;
-        command[3] = 0.5; // joint 4 upper limit is 0 rad
+        command[3] = 2.5; // joint 4 upper limit is 2.0944 rad
         let err = arm.command_position(&command).unwrap_err();
         match err {
             HalError::OutOfLimits {
                 joint, quantity, ..
             } => {
-                assert_eq!(joint, "panda_joint4");
+                assert_eq!(joint, "arm_joint_4");
                 assert_eq!(quantity, Quantity::Position);
             }
             other => panic!("unexpected {other:?}"),
@@ -308,11 +289,11 @@ mod tests {
     fn reject_names_the_joint_stepping_too_fast() {
         let mut arm = arm(LimitPolicy::Reject);
         let mut command = arm.read_arm().unwrap().position_rad;
-        command[1] += 0.1; // 5 rad/s over 20 ms; joint 2 allows 2.175 rad/s
+        command[1] += 0.1; // 5 rad/s over 20 ms; joint 2 allows 1.48 rad/s
         let err = arm.command_position(&command).unwrap_err();
         assert!(matches!(
             err,
-            HalError::OutOfLimits { ref joint, quantity: Quantity::Velocity, .. } if joint == "panda_joint2"
+            HalError::OutOfLimits { ref joint, quantity: Quantity::Velocity, .. } if joint == "arm_joint_2"
         ));
     }
 
@@ -320,7 +301,7 @@ mod tests {
     fn clamp_keeps_commands_admissible() {
         let mut arm = arm(LimitPolicy::Clamp);
         let start = arm.read_arm().unwrap().position_rad;
-        let limits = panda_limits();
+        let limits = arm_limits();
         let target = [10.0; ARM_JOINTS];
         for _ in 0..200 {
             arm.command_position(&target).unwrap();

@@ -2,7 +2,7 @@
 //! image of a command is recomputed here from the model and core's per-subsystem metrics.
 
 use super::*;
-use crate::model::tests::panda_unit;
+use crate::model::tests::shipped_unit;
 use moonhaul_core::se3::{planar_distance, pose_distance};
 use moonhaul_core::stacked::Subsystem;
 use moonhaul_core::state::{PlanarPose, ARM_JOINTS};
@@ -13,22 +13,30 @@ const PERIOD_S: f64 = 0.02;
 
 fn model() -> &'static UnitModel {
     static MODEL: OnceLock<UnitModel> = OnceLock::new();
-    MODEL.get_or_init(panda_unit)
+    MODEL.get_or_init(shipped_unit)
 }
 
 fn clamp(n: usize) -> Clamp {
-    Clamp::new(model().clone(), &SyncConfig::default(), PERIOD_S, n).unwrap()
+    Clamp::new(
+        model().clone(),
+        &SyncConfig::shipped().unwrap(),
+        PERIOD_S,
+        n,
+    )
+    .unwrap()
 }
 
 /// Every subsystem's distance between the task image of `commands` and the sensed state.
 fn subsystem_distances(sensed: &[UnitState], commands: &[UnitCommand]) -> Vec<(Subsystem, f64)> {
     let m = model();
-    let tol = SyncTolerances::default();
+    let tol = SyncConfig::shipped().unwrap().tolerances;
     let delta_w = Vector2::from(tol.base_xy_m);
     let mut out = Vec::new();
     for (i, (s, u)) in sensed.iter().zip(commands).enumerate() {
         let y_arm = m.arm_world_pose(&s.base_pose, &s.arm.position_rad).unwrap();
-        let base = m.integrate_base(&s.base_pose, &u.wheel_velocity_radps, PERIOD_S);
+        let base = m
+            .spec()
+            .integrate_base(&s.base_pose, &u.wheel_velocity_radps, PERIOD_S);
         let x_arm = m.arm_world_pose(&base, &u.arm_position_rad).unwrap();
         let (y_xy, x_xy) = (
             Vector2::new(s.base_pose.x_m, s.base_pose.y_m),
@@ -234,7 +242,7 @@ fn bad_inputs_are_errors_naming_unit_and_field() {
         "sensed has 1 units; the team has 2"
     );
     assert!(matches!(
-        Clamp::new(model().clone(), &SyncConfig::default(), 0.0, 2),
+        Clamp::new(model().clone(), &SyncConfig::shipped().unwrap(), 0.0, 2),
         Err(ClampError::Period(_))
     ));
 }

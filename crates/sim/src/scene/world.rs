@@ -1,0 +1,355 @@
+//! World building: the rapier world of one episode (integration parameters, ground, the two
+//! unit multibodies, the payload and its collider), settled and grasped at reset.
+
+use moonhaul_core::state::{UnitCommand, ARM_JOINTS, WHEEL_JOINTS};
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rapier3d::prelude::*;
+
+use super::actuation::set_motors;
+use super::ground::{ground_height, terrain_collider};
+use super::{Env, EnvOptions, GraspState, SceneModel, UNITS};
+use crate::convert::{to_pose, to_vector};
+use crate::model::Shape;
+use crate::randomization::Randomization;
+use crate::SimError;
+
+/// Time the world settles at reset before the grasps close, s (not counted in episode time).
+const SETTLE_S: f64 = 0.25;
+/// Clearance at which bodies are spawned above the ground, m: they settle in the first steps.
+const SPAWN_CLEARANCE_M: f64 = 0.002;
+
+/// Rapier handles of one unit.
+#[derive(Debug, Clone)]
+pub(super) struct UnitHandles {
+    /// Per model body.
+    pub(super) bodies: Vec<RigidBodyHandle>,
+    pub(super) wheels: [MultibodyJointHandle; WHEEL_JOINTS],
+    pub(super) arm: [MultibodyJointHandle; ARM_JOINTS],
+}
+
+impl Env {
+    /// A world seeded with `seed`, reset to its first episode.
+    pub fn new(scene: &SceneModel, seed: u64, options: EnvOptions) -> Result<Self, SimError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut env = Self::build(scene, &mut rng, options)?;
+        env.rng = rng;
+        Ok(env)
+    }
+
+    /// Starts a new episode, drawing from this env's own random stream.
+    pub fn reset(&mut self, scene: &SceneModel) -> Result<(), SimError> {
+        let mut rng = self.rng.clone();
+        let mut env = Self::build(scene, &mut rng, self.options)?;
+        env.rng = rng;
+        *self = env;
+        Ok(())
+    }
+
+    fn build(
+        scene: &SceneModel,
+        rng: &mut ChaCha8Rng,
+        options: EnvOptions,
+    ) -> Result<Self, SimError> {
+        let config = &scene.config;
+        let r = &config.randomization;
+        let mut draw = if options.randomize {
+            r.draw(rng)
+        } else {
+            r.nominal(options.payload.unwrap_or(r.payloads[0]))
+        };
+        if let Some(p) = options.payload {
+            draw.payload = p;
+        }
+        let noise = if options.randomize {
+            r.command_noise()
+        } else {
+            Randomization::noiseless()
+        };
+        let payload_model = &scene.payloads[&draw.payload];
+
+        let mut world = PhysicsWorld::new();
+        world.gravity = Vector::new(0.0, 0.0, config.physics.gravity_mps2 as f32);
+        let p = &mut world.integration_parameters;
+        let physics = &config.physics;
+        p.dt = (1.0 / physics.collision_hz) as f32;
+        p.num_solver_iterations = config.substeps();
+        p.num_internal_pgs_iterations = physics.num_internal_pgs_iterations;
+        p.num_internal_stabilization_iterations = physics.num_internal_stabilization_iterations;
+        // `length_unit` is 1 (metres), so the normalized distance is in metres.
+        p.normalized_prediction_distance = physics.prediction_distance_m as f32;
+
+        let ground =
+            world.insert_collider(terrain_collider(config, draw.terrain.as_ref(), rng)?, None);
+
+        let mut units = Vec::with_capacity(UNITS);
+        let mut start_q = [[0.0; ARM_JOINTS]; UNITS];
+        for (i, start) in start_q.iter_mut().enumerate() {
+            let (y, yaw) = scene.base_pose(i, payload_model);
+            let rotation = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+            // Rest the base on the higher of the ground points under its wheels.
+            let ground_z = scene
+                .wheel_bodies
+                .iter()
+                .filter_map(|&b| scene.unit.bodies[b].joint.as_ref())
+                .map(|j| {
+                    let at = rotation * j.frame_in_parent.translation.vector;
+                    ground_height(&world, ground, at.x, y + at.y)
+                })
+                .fold(f64::NEG_INFINITY, f64::max);
+            let base = Isometry3::from_parts(
+                Translation3::new(
+                    0.0,
+                    y,
+                    ground_z + scene.spec.base_height_m + SPAWN_CLEARANCE_M,
+                ),
+                rotation,
+            );
+            let mut q = payload_model.grasp_q_rad;
+            for (q, dq) in q.iter_mut().zip(draw.initial_joint_offset_rad[i]) {
+                *q += dq;
+            }
+            *start = q;
+            units.push(insert_unit(
+                &mut world,
+                scene,
+                &base,
+                &q,
+                draw.wheel_friction,
+            )?);
+        }
+        let units: [UnitHandles; UNITS] = units
+            .try_into()
+            .map_err(|_| SimError::Kinematics("unit count mismatch".into()))?;
+
+        // Payload: level, at the origin, resting on the highest ground under its footprint.
+        let he = payload_model.half_extents_m;
+        let under = [
+            (0.0, 0.0),
+            (he.x, he.y),
+            (he.x, -he.y),
+            (-he.x, he.y),
+            (-he.x, -he.y),
+        ]
+        .iter()
+        .map(|&(x, y)| ground_height(&world, ground, x, y))
+        .fold(f64::NEG_INFINITY, f64::max);
+        let body = &payload_model.model.bodies[0];
+        let inertia = body.inertia;
+        let scale = draw.payload_mass_scale;
+        let payload = world.insert_body(
+            RigidBodyBuilder::dynamic()
+                .can_sleep(false)
+                .pose(to_pose(&Isometry3::translation(
+                    0.0,
+                    0.0,
+                    under + he.z + SPAWN_CLEARANCE_M,
+                )))
+                .additional_mass_properties(MassProperties::with_inertia_matrix(
+                    to_vector(&inertia.com_m),
+                    (inertia.mass_kg * scale) as f32,
+                    mat3(&(inertia.inertia_kgm2 * scale)),
+                )),
+        );
+        let payload_collider = world.insert_collider(
+            ColliderBuilder::cuboid(he.x as f32, he.y as f32, he.z as f32)
+                .density(0.0)
+                .friction(config.scene.payload_friction as f32)
+                .friction_combine_rule(CoefficientCombineRule::Min),
+            Some(payload),
+        );
+
+        let mut env = Env {
+            world,
+            units,
+            payload,
+            payload_collider,
+            ground,
+            grasps: [None; UNITS],
+            grasp_state: [GraspState::default(); UNITS],
+            grasp_broken: false,
+            payload_kind: draw.payload,
+            draw,
+            noise,
+            rng: ChaCha8Rng::seed_from_u64(0),
+            options,
+            pipeline_steps: 0,
+        };
+        // Everything drops the spawn clearance and settles on the terrain, arms holding their
+        // start positions, before the grasps close: a grasp made in mid-air would take the
+        // settling transient as a spike and could break at the first step.
+        for (unit, q) in env.units.iter().zip(&start_q) {
+            let hold = UnitCommand {
+                arm_position_rad: *q,
+                ..UnitCommand::default()
+            };
+            set_motors(
+                &mut env.world,
+                scene,
+                unit,
+                &hold,
+                &[0.0; WHEEL_JOINTS],
+                &[0.0; ARM_JOINTS],
+            );
+        }
+        for _ in 0..(SETTLE_S * config.physics.collision_hz).round() as usize {
+            env.world.step();
+        }
+        env.attach_grasps(scene);
+        Ok(env)
+    }
+}
+
+fn mat3(m: &Matrix3<f64>) -> rapier3d::math::Matrix {
+    rapier3d::math::Matrix::from_cols_array(&[
+        m[(0, 0)] as f32,
+        m[(1, 0)] as f32,
+        m[(2, 0)] as f32,
+        m[(0, 1)] as f32,
+        m[(1, 1)] as f32,
+        m[(2, 1)] as f32,
+        m[(0, 2)] as f32,
+        m[(1, 2)] as f32,
+        m[(2, 2)] as f32,
+    ])
+}
+
+/// Inserts one unit as a multibody at `base` with arm joints at `arm_q`.
+fn insert_unit(
+    world: &mut PhysicsWorld,
+    scene: &SceneModel,
+    base: &Isometry3<f64>,
+    arm_q: &[f64; ARM_JOINTS],
+    wheel_friction: f64,
+) -> Result<UnitHandles, SimError> {
+    let model = &scene.unit;
+    // Body poses at the initial configuration; wheels at 0 rad.
+    let mut q_of_body = vec![0.0; model.bodies.len()];
+    for (b, q) in scene.arm_bodies.iter().zip(arm_q) {
+        q_of_body[*b] = *q;
+    }
+    let mut poses: Vec<Isometry3<f64>> = Vec::with_capacity(model.bodies.len());
+    let mut handles = Vec::with_capacity(model.bodies.len());
+    for (b, body) in model.bodies.iter().enumerate() {
+        let pose = match &body.joint {
+            None => *base,
+            Some(j) => {
+                poses[j.parent]
+                    * j.frame_in_parent
+                    * UnitQuaternion::from_axis_angle(&j.axis, q_of_body[b])
+            }
+        };
+        poses.push(pose);
+        let i = body.inertia;
+        let h = world.insert_body(
+            // Sleeping would freeze arms whose motor targets change while they are at rest.
+            RigidBodyBuilder::dynamic()
+                .can_sleep(false)
+                .pose(to_pose(&pose))
+                .additional_mass_properties(MassProperties::with_inertia_matrix(
+                    to_vector(&i.com_m),
+                    i.mass_kg as f32,
+                    mat3(&i.inertia_kgm2),
+                )),
+        );
+        let is_wheel = scene.wheel_bodies.contains(&b);
+        for c in &body.colliders {
+            let builder = match c.shape {
+                Shape::Ball { radius_m } => ColliderBuilder::ball(radius_m as f32),
+                Shape::Cuboid { half_extents_m: e } => {
+                    ColliderBuilder::cuboid(e.x as f32, e.y as f32, e.z as f32)
+                }
+            };
+            // Wheels grip with the randomized μ; casters are frictionless support balls.
+            let mu = if is_wheel { wheel_friction } else { 0.0 };
+            world.insert_collider(
+                builder
+                    .position(to_pose(&c.pose))
+                    .density(0.0)
+                    .friction(mu as f32)
+                    .friction_combine_rule(CoefficientCombineRule::Min),
+                Some(h),
+            );
+        }
+        handles.push(h);
+    }
+    let mut joint_handles = vec![None; model.bodies.len()];
+    for (b, body) in model.bodies.iter().enumerate() {
+        let Some(j) = &body.joint else { continue };
+        // Joint frames map rapier's free axis (X) onto the URDF axis.
+        let align = UnitQuaternion::rotation_between(&Vector3::x(), &j.axis).unwrap_or_else(|| {
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI)
+        });
+        let mut data = GenericJointBuilder::new(JointAxesMask::LOCKED_REVOLUTE_AXES)
+            .local_frame1(to_pose(&(j.frame_in_parent * align)))
+            .local_frame2(to_pose(&Isometry3::from_parts(
+                Translation3::identity(),
+                align,
+            )))
+            .motor_max_force(JointAxis::AngX, j.limits.effort as f32)
+            .build();
+        if scene.wheel_bodies.contains(&b) {
+            data.set_motor_model(JointAxis::AngX, MotorModel::ForceBased);
+        }
+        if j.limits.lower.is_finite() && j.limits.upper.is_finite() {
+            data.set_limits(
+                JointAxis::AngX,
+                [j.limits.lower as f32, j.limits.upper as f32],
+            );
+        }
+        let h = world
+            .insert_multibody_joint(handles[j.parent], handles[b], data)
+            .ok_or_else(|| SimError::Model {
+                path: model.path.clone(),
+                reason: format!("joint {:?} would close a kinematic loop", j.name),
+            })?;
+        joint_handles[b] = Some(h);
+    }
+    // Initial joint coordinates and URDF damping, per generalized coordinate.
+    let mut per_dof = Vec::with_capacity(model.bodies.len());
+    for (b, body) in model.bodies.iter().enumerate() {
+        if let (Some(j), Some(h)) = (&body.joint, joint_handles[b]) {
+            if let Some((mb, id)) = world.multibody_joints.get(h) {
+                let dof = mb.link(id).map_or(0, |l| l.assembly_id());
+                per_dof.push((dof, q_of_body[b] as f32, j.damping as f32));
+            }
+        }
+    }
+    let root = model
+        .bodies
+        .iter()
+        .position(|b| b.joint.is_some())
+        .and_then(|b| joint_handles[b]);
+    if let Some((mb, _)) = root.and_then(|h| world.multibody_joints.get_mut(h)) {
+        let mut disp = vec![0.0f32; mb.ndofs()];
+        // The free root's six coordinates come first; its default damping would slow the base.
+        mb.damping_mut().rows_mut(0, 6).fill(0.0);
+        for &(dof, q, damping) in &per_dof {
+            disp[dof] = q;
+            mb.damping_mut()[dof] = damping;
+        }
+        mb.apply_displacements(&disp);
+        mb.forward_kinematics(&world.bodies, true);
+        mb.update_rigid_bodies(&mut world.bodies, true);
+    }
+    let handle = |b: usize| {
+        joint_handles[b].ok_or_else(|| SimError::Model {
+            path: model.path.clone(),
+            reason: format!("body {:?} has no joint", model.bodies[b].link),
+        })
+    };
+    let mut wheels = [MultibodyJointHandle::invalid(); WHEEL_JOINTS];
+    for (w, b) in wheels.iter_mut().zip(scene.wheel_bodies) {
+        *w = handle(b)?;
+    }
+    let mut arm = [MultibodyJointHandle::invalid(); ARM_JOINTS];
+    for (a, b) in arm.iter_mut().zip(scene.arm_bodies) {
+        *a = handle(b)?;
+    }
+    Ok(UnitHandles {
+        bodies: handles,
+        wheels,
+        arm,
+    })
+}
