@@ -1,10 +1,22 @@
 //! `moonhaul`: the operator's umbrella CLI. It never links libtorch (training lives in
 //! `moonhaul-train`); everything here runs on the pure-Rust core.
 
+/// `println!` that returns an error (a closed pipe, a full disk) instead of panicking, so
+/// `moonhaul … | head` ends cleanly.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*)
+            .map_err(|e| anyhow::anyhow!("cannot write to stdout: {e}"))
+    }};
+}
+
 mod can_cmd;
 mod policy_cmd;
 mod sim_cmd;
 mod urdf_cmd;
+
+use std::io::Write as _;
 
 use clap::{Parser, Subcommand};
 
@@ -46,7 +58,8 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            // Nothing is left to tell if stderr is gone too.
+            let _ = writeln!(std::io::stderr().lock(), "error: {err:#}");
             std::process::ExitCode::FAILURE
         }
     }

@@ -27,11 +27,10 @@ pub fn run(cmd: PolicyCommand) -> anyhow::Result<()> {
             let policy = Policy::from_file(&file)
                 .with_context(|| format!("cannot inspect {}", file.display()))?;
             if json {
-                println!("{}", inspect_json(&file, &policy));
+                outln!("{}", inspect_json(&file, &policy))
             } else {
-                print!("{}", inspect_text(&file, &policy));
+                outln!("{}", inspect_text(&file, &policy).trim_end())
             }
-            Ok(())
         }
     }
 }

@@ -5,11 +5,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use moonhaul_core::state::{Phase, UnitCommand};
 use moonhaul_sim::accuracy;
 use moonhaul_sim::scene::UNITS;
-use moonhaul_sim::scripted::{run_mission, ScriptedController};
+use moonhaul_sim::scripted::{run_mission, MissionPlan, ScriptedController};
 use moonhaul_sim::{BatchEnv, Env, EnvOptions, PayloadKind, SceneModel, SimConfig};
 use plotters::prelude::*;
 
@@ -23,7 +23,7 @@ pub enum SimCommand {
         #[arg(long)]
         payload: PayloadKind,
         /// Seed of the env's random stream.
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
         seed: u64,
         /// Nominal world: flat ground, mid-range friction, no command noise or joint offsets.
         #[arg(long)]
@@ -34,6 +34,9 @@ pub enum SimCommand {
         /// Simulator config.
         #[arg(long, default_value = "configs/sim.toml")]
         config: PathBuf,
+        /// Scripted mission plan.
+        #[arg(long, default_value = "configs/mission.toml")]
+        mission: PathBuf,
     },
     /// Measure control and physics (integration) steps per second for one env and for a batch
     /// replaying the scripted mission's commands under domain randomization, and the accuracy
@@ -42,18 +45,22 @@ pub enum SimCommand {
         /// Print only the batched result as one JSON line.
         #[arg(long)]
         json: bool,
-        /// Envs in the batch.
-        #[arg(long, default_value_t = 64)]
+        /// Envs in the batch, 1 to 4096.
+        #[arg(long, allow_negative_numbers = true, default_value_t = 64)]
         envs: usize,
-        /// Worker threads (0: one per core).
-        #[arg(long, default_value_t = 0)]
+        /// Worker threads (0: one per core; at most 1024).
+        #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
         threads: usize,
-        /// Control steps per env (default: 10 s of the scripted mission).
-        #[arg(long, default_value_t = 500)]
+        /// Control steps per env (default: 10 s of the scripted mission), 1 to 1000000; envs
+        /// × steps at most 10000000.
+        #[arg(long, allow_negative_numbers = true, default_value_t = 500)]
         steps: usize,
         /// Simulator config.
         #[arg(long, default_value = "configs/sim.toml")]
         config: PathBuf,
+        /// Scripted mission plan.
+        #[arg(long, default_value = "configs/mission.toml")]
+        mission: PathBuf,
     },
 }
 
@@ -65,14 +72,16 @@ pub fn run(cmd: SimCommand) -> Result<()> {
             no_randomization,
             out,
             config,
-        } => demo(payload, seed, !no_randomization, &out, &config),
+            mission,
+        } => demo(payload, seed, !no_randomization, &out, &config, &mission),
         SimCommand::Bench {
             json,
             envs,
             threads,
             steps,
             config,
-        } => bench(json, envs, threads, steps, &config),
+            mission,
+        } => bench(json, envs, threads, steps, &config, &mission),
     }
 }
 
@@ -95,15 +104,43 @@ struct Row {
     contact: bool,
 }
 
-fn demo(payload: PayloadKind, seed: u64, randomize: bool, out: &Path, config: &Path) -> Result<()> {
+/// Creates the output folder before the mission runs, so a path that cannot be one (an
+/// existing file, a folder under a file, no permission) fails at once, by name.
+fn prepare_out_dir(out: &Path) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        bail!("--out {}: exists and is not a folder", out.display());
+    }
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("--out {}: cannot create the output folder", out.display()))?;
+    if !out.is_dir() {
+        bail!("--out {}: is not a folder", out.display());
+    }
+    Ok(())
+}
+
+fn load_mission(mission: &Path) -> Result<MissionPlan> {
+    MissionPlan::load(mission)
+        .with_context(|| format!("cannot load mission plan {}", mission.display()))
+}
+
+fn demo(
+    payload: PayloadKind,
+    seed: u64,
+    randomize: bool,
+    out: &Path,
+    config: &Path,
+    mission: &Path,
+) -> Result<()> {
+    prepare_out_dir(out)?;
     let scene = load_scene(config)?;
+    let plan = load_mission(mission)?;
     let options = EnvOptions {
         randomize,
         payload: Some(payload),
     };
     let mut env = Env::new(&scene, seed, options).context("cannot create the env")?;
     let mut rows = Vec::new();
-    let summary = run_mission(&scene, &mut env, scene.config.mission, |phase, s| {
+    let summary = run_mission(&scene, &mut env, plan, |phase, s| {
         rows.push(Row {
             t_s: s.time_s,
             phase,
@@ -139,11 +176,8 @@ fn demo(payload: PayloadKind, seed: u64, randomize: bool, out: &Path, config: &P
             u8::from(r.contact)
         );
     }
-    write_atomically(&out.join("demo.csv"), |tmp| {
-        std::fs::write(tmp, &csv).map_err(Into::into)
-    })?;
-    write_atomically(&out.join("demo.png"), |tmp| plot(tmp, &rows))?;
-    println!(
+    write_outputs(&out.join("demo.csv"), &csv, &out.join("demo.png"), &rows)?;
+    outln!(
         "{} ({}): max height {:.3} m, max tilt {:.2} deg, travel {:.3} m, touchdown {:.3} m/s, \
          max grasp force {:.1} N, grasp drift {:.2} mm / {:.3} deg, broken: {}",
         payload.name(),
@@ -160,36 +194,34 @@ fn demo(payload: PayloadKind, seed: u64, randomize: bool, out: &Path, config: &P
         summary.max_grasp_drift_m * 1e3,
         summary.max_grasp_drift_rad.to_degrees(),
         summary.grasp_broken
-    );
-    println!(
+    )?;
+    outln!(
         "wrote {} and {}",
         out.join("demo.csv").display(),
         out.join("demo.png").display()
-    );
+    )?;
     Ok(())
 }
 
-/// Writes `path` whole or not at all ([`moonhaul_core::atomic_file`]).
-fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let context = || format!("cannot write {}", path.display());
-    moonhaul_core::atomic_file::write_with(
-        path,
-        |temp| write(temp).with_context(context),
-        |e| anyhow::Error::new(e).context(context()),
-    )
+/// Writes the CSV and its plot as one group ([`moonhaul_core::atomic_file::Group`]): each
+/// whole or not at all, and a reader never sees a new CSV beside an old plot or the reverse.
+fn write_outputs(csv_path: &Path, csv: &str, png_path: &Path, rows: &[Row]) -> Result<()> {
+    let cannot_write = |path: &Path| format!("cannot write {}", path.display());
+    let mut outputs = moonhaul_core::atomic_file::Group::new(|path: &Path, e: std::io::Error| {
+        anyhow::Error::new(e).context(cannot_write(path))
+    });
+    outputs.stage(csv_path, |temp| {
+        std::fs::write(temp, csv).with_context(|| cannot_write(csv_path))
+    })?;
+    outputs.stage(png_path, |temp| {
+        plot(temp, rows).with_context(|| cannot_write(png_path))
+    })?;
+    outputs.publish()
 }
-
-/// The bundled ASCII subset of DejaVu Sans (`assets/fonts/`, licence beside it), so labels
-/// need no system font library.
-static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans-ascii.ttf");
 
 /// Two panels over mission time: payload height (m) on top, tilt (deg) below.
 fn plot(path: &Path, rows: &[Row]) -> Result<()> {
-    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let font_ok = *REGISTERED.get_or_init(|| {
-        plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_ok()
-    });
-    anyhow::ensure!(font_ok, "the bundled font is invalid");
+    moonhaul_core::plot_font::register().map_err(anyhow::Error::msg)?;
     let root = BitMapBackend::new(path, (1200, 800)).into_drawing_area();
     root.fill(&WHITE)?;
     let panels = root.split_evenly((2, 1));
@@ -219,7 +251,7 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
             });
         let pad = 0.05 * (hi - lo);
         let mut chart = ChartBuilder::on(panel)
-            .caption(title, ("sans-serif", 22))
+            .caption(title, (moonhaul_core::plot_font::FAMILY, 22))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(70)
@@ -228,8 +260,8 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
             .configure_mesh()
             .x_desc("mission time (s)")
             .y_desc(y_desc)
-            .label_style(("sans-serif", 15))
-            .axis_desc_style(("sans-serif", 16))
+            .label_style((moonhaul_core::plot_font::FAMILY, 15))
+            .axis_desc_style((moonhaul_core::plot_font::FAMILY, 16))
             .light_line_style(RGBColor(235, 235, 235))
             .draw()?;
         chart.draw_series(LineSeries::new(
@@ -243,7 +275,11 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
 
 /// The scripted mission's commands for `steps` control steps of a nominal run; every env of a
 /// batch replays them, so the bench times the simulator, not the controller.
-fn scripted_commands(scene: &SceneModel, steps: usize) -> Result<Vec<[UnitCommand; UNITS]>> {
+fn scripted_commands(
+    scene: &SceneModel,
+    plan: MissionPlan,
+    steps: usize,
+) -> Result<Vec<[UnitCommand; UNITS]>> {
     let mut env = Env::new(
         scene,
         0,
@@ -253,7 +289,7 @@ fn scripted_commands(scene: &SceneModel, steps: usize) -> Result<Vec<[UnitComman
         },
     )?;
     let mut state = env.state(scene);
-    let mut controller = ScriptedController::new(scene.config.mission, scene, &state)?;
+    let mut controller = ScriptedController::new(plan, scene, &state)?;
     let mut commands = Vec::with_capacity(steps);
     for _ in 0..steps {
         let (_, command) = controller.command(scene, state.time_s, &state)?;
@@ -264,45 +300,103 @@ fn scripted_commands(scene: &SceneModel, steps: usize) -> Result<Vec<[UnitComman
     Ok(commands)
 }
 
-fn bench(json: bool, envs: usize, threads: usize, steps: usize, config: &Path) -> Result<()> {
+/// Most envs in a bench batch: an env holds ~0.9 MB, so the largest batch takes ~4 GB.
+const MAX_BENCH_ENVS: usize = 4096;
+/// Most control steps per env: 10⁶ steps are 5.5 h of simulated time at 50 Hz (the commands
+/// replayed take 144 MB); one env runs them in ~5 min on one core.
+const MAX_BENCH_STEPS: usize = 1_000_000;
+/// Most env steps (envs × steps) of one bench: ~20 min at the ~8000 env steps/s of a
+/// two-core machine, never hours or days.
+const MAX_BENCH_ENV_STEPS: usize = 10_000_000;
+/// Most worker threads (far above any core count; each thread reserves a stack).
+const MAX_BENCH_THREADS: usize = 1024;
+
+/// Every bad combination of bench arguments is an error naming the argument.
+fn check_bench_args(envs: usize, threads: usize, steps: usize) -> Result<()> {
+    if !(1..=MAX_BENCH_ENVS).contains(&envs) {
+        bail!("--envs must be in 1..={MAX_BENCH_ENVS}, got {envs}");
+    }
+    if !(1..=MAX_BENCH_STEPS).contains(&steps) {
+        bail!("--steps must be in 1..={MAX_BENCH_STEPS}, got {steps}");
+    }
+    if threads > MAX_BENCH_THREADS {
+        bail!("--threads must be 0 (one per core) or at most {MAX_BENCH_THREADS}, got {threads}");
+    }
+    if envs
+        .checked_mul(steps)
+        .is_none_or(|total| total > MAX_BENCH_ENV_STEPS)
+    {
+        bail!(
+            "--envs {envs} × --steps {steps} is more than the {MAX_BENCH_ENV_STEPS} env steps \
+             one bench may run"
+        );
+    }
+    Ok(())
+}
+
+fn bench(
+    json: bool,
+    envs: usize,
+    threads: usize,
+    steps: usize,
+    config: &Path,
+    mission: &Path,
+) -> Result<()> {
+    check_bench_args(envs, threads, steps)?;
     let scene = load_scene(config)?;
+    let mission = load_mission(mission)?;
     let decimation = scene.decimation() as f64;
-    let plan = scripted_commands(&scene, steps)?;
+    let plan = scripted_commands(&scene, mission, steps)?;
+    let first = *plan
+        .first()
+        .context("the scripted mission gave no commands")?;
+    // The JSON line reports the batch only; the table compares it with one env on one thread.
+    let runs: &[(usize, usize)] = if json {
+        &[(envs, threads)]
+    } else {
+        &[(1, 1), (envs, threads)]
+    };
     let mut rates = Vec::new();
-    for (count, threads) in [(1, 1), (envs, threads)] {
-        if json && count == 1 {
-            continue;
-        }
+    for &(count, threads) in runs {
         let mut batch = BatchEnv::new(scene.clone(), count, 1, EnvOptions::default(), threads)?;
-        let mut commands = vec![plan[0]; count];
+        let mut commands = vec![first; count];
         let start = Instant::now();
         for step in &plan {
             commands.iter_mut().for_each(|c| *c = *step);
             batch.step(&commands)?;
         }
         let elapsed = start.elapsed().as_secs_f64();
-        let control = (count * plan.len()) as f64 / elapsed;
+        if elapsed <= 0.0 {
+            bail!(
+                "the clock did not advance over {} control steps",
+                plan.len()
+            );
+        }
+        let control = count as f64 * plan.len() as f64 / elapsed;
         rates.push((count, batch.threads(), control, control * decimation));
     }
     let &(n, t, control, physics) = rates.last().context("no bench ran")?;
     if json {
-        println!(
+        outln!(
             "{}",
             serde_json::json!({"envs": n, "threads": t, "control_steps_per_s": control, "physics_steps_per_s": physics})
-        );
+        )?;
         return Ok(());
     }
     let p = &scene.config.physics;
-    println!(
+    outln!(
         "config: {} Hz integration, {} Hz collision detection, {} Hz control, {} PGS sweep(s)",
-        p.physics_hz, p.collision_hz, p.control_hz, p.num_internal_pgs_iterations
-    );
+        p.physics_hz,
+        p.collision_hz,
+        scene.config.control_hz,
+        p.num_internal_pgs_iterations
+    )?;
     for (n, t, control, physics) in &rates {
-        println!(
+        outln!(
             "{n:>5} env(s) on {t} thread(s): {control:>9.0} control steps/s, {physics:>9.0} physics steps/s"
-        );
+        )?;
     }
-    let report = accuracy::compare(&scene).context("accuracy run failed")?;
-    println!("{report}");
+    let report = accuracy::compare(&scene, mission).context("accuracy run failed")?;
+    outln!("{report}")?;
     Ok(())
 }

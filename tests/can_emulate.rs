@@ -1,17 +1,37 @@
 //! End-to-end tests of `moonhaul can emulate`: the nine emulated drives are started, enabled,
 //! moved and disabled, and the recorded candump log holds the whole conversation.
 
-use std::process::{Command, Output};
+use std::process::Command;
+
+mod common;
+use common::*;
 
 use moonhaul_hal::can::candump;
 
 const UNIT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/unit_can.toml");
+const CONFIGS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs");
 
-fn moonhaul(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_moonhaul"))
-        .args(args)
-        .output()
-        .unwrap()
+/// The shipped unit config, edited by `edit`, written to `dir/name`; the files it names
+/// (control rate, URDF) stay the shipped ones.
+fn unit_copy(
+    dir: &std::path::Path,
+    name: &str,
+    edit: impl FnOnce(String) -> String,
+) -> std::path::PathBuf {
+    let text = std::fs::read_to_string(UNIT).unwrap();
+    let text = text
+        .lines()
+        .map(|line| match line.split_once(" = \"") {
+            Some((key @ ("control" | "unit_urdf"), rest)) => {
+                format!("{key} = \"{CONFIGS}/{rest}")
+            }
+            _ => line.to_owned(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let path = dir.join(name);
+    std::fs::write(&path, edit(text)).unwrap();
+    path
 }
 
 #[test]
@@ -82,11 +102,9 @@ fn help_documents_every_argument() {
 #[test]
 fn a_bad_config_is_named_with_its_field() {
     let dir = tempfile::tempdir().unwrap();
-    let bad = dir.path().join("bad_unit.toml");
-    let text = std::fs::read_to_string(UNIT)
-        .unwrap()
-        .replacen("node_id = 2", "node_id = 1", 1);
-    std::fs::write(&bad, text).unwrap();
+    let bad = unit_copy(dir.path(), "bad_unit.toml", |text| {
+        text.replacen("node_id = 2", "node_id = 1", 1)
+    });
     let log = dir.path().join("never.log");
     let out = moonhaul(&[
         "can",
@@ -105,4 +123,138 @@ fn a_bad_config_is_named_with_its_field() {
     assert!(!log.exists());
     let out = moonhaul(&["can", "emulate", "--unit", UNIT, "--seconds", "-1"]);
     assert!(!out.status.success());
+}
+
+#[test]
+fn seconds_out_of_range_are_errors_and_record_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("never.log");
+    let log_s = log.to_str().unwrap();
+    for seconds in [
+        "NaN", "nan", "inf", "-inf", "-1", "0", "-0", "600.001", "1e9", "1e308", "abc", "",
+    ] {
+        let arg = format!("--seconds={seconds}");
+        fails_naming(
+            &["can", "emulate", "--unit", UNIT, &arg, "--record", log_s],
+            "--seconds",
+        );
+    }
+    // A negative number after a space is the value, not an unknown flag.
+    fails_naming(
+        &[
+            "can",
+            "emulate",
+            "--unit",
+            UNIT,
+            "--seconds",
+            "-1",
+            "--record",
+            log_s,
+        ],
+        "--seconds",
+    );
+    // Positive but shorter than one 20 ms control cycle.
+    let stderr = fails_naming(
+        &[
+            "can",
+            "emulate",
+            "--unit",
+            UNIT,
+            "--seconds",
+            "1e-9",
+            "--record",
+            log_s,
+        ],
+        "--seconds",
+    );
+    assert!(stderr.contains("control cycle"), "{stderr}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+#[test]
+fn a_fast_sync_period_cannot_make_an_unbounded_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let control = dir.path().join("control.toml");
+    std::fs::write(&control, "control_rate_hz = 1000.0\n").unwrap();
+    let fast = unit_copy(dir.path(), "fast_unit.toml", |text| {
+        let shipped = format!("control = \"{CONFIGS}/control.toml\"");
+        assert!(text.contains(&shipped), "{text}");
+        text.replacen(&shipped, "control = \"control.toml\"", 1)
+    });
+    // 600 s at 1 kHz: 600 000 control cycles.
+    let stderr = fails_naming(
+        &[
+            "can",
+            "emulate",
+            "--unit",
+            fast.to_str().unwrap(),
+            "--seconds",
+            "600",
+        ],
+        "--seconds",
+    );
+    assert!(stderr.contains("control cycles"), "{stderr}");
+}
+
+#[test]
+fn record_refuses_targets_it_cannot_replace_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let emulate = |record: &str| {
+        vec![
+            "can".to_owned(),
+            "emulate".into(),
+            "--unit".into(),
+            UNIT.into(),
+            "--seconds".into(),
+            "0.1".into(),
+            "--record".into(),
+            record.to_owned(),
+        ]
+    };
+    let run = |record: &std::path::Path, needle: &str| {
+        let args = emulate(record.to_str().unwrap());
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        fails_naming(&args, needle)
+    };
+    // A folder.
+    let folder = dir.path().join("folder");
+    std::fs::create_dir(&folder).unwrap();
+    run(&folder, "not a regular file");
+    assert!(folder.is_dir());
+    // A FIFO: opening it would block; replacing it would surprise whoever reads it.
+    let fifo = dir.path().join("fifo");
+    let made = Command::new("mkfifo").arg(&fifo).status();
+    if made.is_ok_and(|s| s.success()) {
+        let stderr = run(&fifo, "not a regular file");
+        assert!(stderr.contains("fifo"), "{stderr}");
+        use std::os::unix::fs::FileTypeExt;
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+    }
+    // A folder that does not exist, and one under a file.
+    let missing = dir.path().join("missing").join("unit.log");
+    run(&missing, "missing");
+    let file = dir.path().join("file");
+    std::fs::write(&file, "").unwrap();
+    run(&file.join("unit.log"), "is not a folder");
+    // A folder that takes no new files (skipped as root, who may write anywhere).
+    let locked = dir.path().join("locked");
+    std::fs::create_dir(&locked).unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o555)).unwrap();
+    if std::fs::write(locked.join("probe"), "").is_err() {
+        run(&locked.join("unit.log"), "cannot create files");
+        assert_eq!(std::fs::read_dir(&locked).unwrap().count(), 0);
+    }
+    std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o755)).unwrap();
+    // No file name at all.
+    run(std::path::Path::new("/"), "--record");
+    // Nothing else was written anywhere (no log, no temporary, no probe).
+    for entry in std::fs::read_dir(dir.path()).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(
+            ["fifo", "file", "folder", "locked"].contains(&name.as_str()),
+            "left behind: {name}"
+        );
+    }
+    assert_eq!(std::fs::read_dir(&folder).unwrap().count(), 0);
 }

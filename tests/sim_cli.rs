@@ -1,26 +1,11 @@
 //! End-to-end tests of `moonhaul sim demo` and `moonhaul sim bench`, and that every model in
 //! `assets/` passes `moonhaul urdf check`.
 
-use std::process::{Command, Output};
+mod common;
+use common::*;
 
 const CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/sim.toml");
 const ASSETS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/assets");
-
-fn moonhaul(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_moonhaul"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn stdout(output: &Output) -> String {
-    assert!(
-        output.status.success(),
-        "stderr: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout.clone()).unwrap()
-}
 
 #[test]
 fn demo_writes_the_mission_csv_and_png() {
@@ -109,5 +94,97 @@ fn every_asset_passes_urdf_check() {
         if path.extension().is_some_and(|e| e == "urdf") {
             stdout(&moonhaul(&["urdf", "check", path.to_str().unwrap()]));
         }
+    }
+}
+
+#[test]
+fn bench_rejects_out_of_range_counts_by_name() {
+    fn bench<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+        let mut args = vec!["sim", "bench", "--json", "--config", CONFIG];
+        args.extend_from_slice(extra);
+        args
+    }
+    fails_naming(&bench(&["--steps", "0"]), "--steps");
+    fails_naming(&bench(&["--steps", "1000001"]), "--steps");
+    fails_naming(&bench(&["--steps", "18446744073709551615"]), "--steps");
+    fails_naming(&bench(&["--steps", "-1"]), "--steps");
+    fails_naming(&bench(&["--envs", "0"]), "--envs");
+    fails_naming(&bench(&["--envs", "4097"]), "--envs");
+    fails_naming(&bench(&["--envs", "99999999999999999999"]), "--envs");
+    fails_naming(&bench(&["--threads", "100000"]), "--threads");
+    // Each in range, together days of work.
+    fails_naming(
+        &bench(&["--envs", "4096", "--steps", "1000000"]),
+        "env steps",
+    );
+}
+
+#[test]
+fn bench_json_with_one_env_reports_finite_rates() {
+    let text = stdout(&moonhaul(&[
+        "sim",
+        "bench",
+        "--json",
+        "--envs",
+        "1",
+        "--threads",
+        "1",
+        "--steps",
+        "3",
+        "--config",
+        CONFIG,
+    ]));
+    assert_eq!(text.lines().count(), 1, "{text}");
+    let value: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+    assert_eq!(value["envs"], 1);
+    assert_eq!(value["threads"], 1);
+    let control = value["control_steps_per_s"].as_f64().unwrap();
+    let physics = value["physics_steps_per_s"].as_f64().unwrap();
+    assert!(control.is_finite() && control > 0.0, "{text}");
+    assert!(physics.is_finite() && physics > control, "{text}");
+}
+
+#[test]
+fn demo_rejects_an_output_folder_that_cannot_be_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("not_a_folder");
+    std::fs::write(&file, "keep me").unwrap();
+    let under_file = file.join("run");
+    for out in [&file, &under_file] {
+        let out = out.to_str().unwrap();
+        let stderr = fails_naming(
+            &[
+                "sim",
+                "demo",
+                "--payload",
+                "box",
+                "--out",
+                out,
+                "--config",
+                CONFIG,
+            ],
+            out,
+        );
+        assert!(stderr.contains("--out"), "{stderr}");
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+}
+
+#[test]
+fn demo_rejects_a_bad_seed_by_name() {
+    for seed in ["-1", "abc", "18446744073709551616", ""] {
+        fails_naming(
+            &[
+                "sim",
+                "demo",
+                "--payload",
+                "box",
+                "--seed",
+                seed,
+                "--out",
+                "/tmp/x",
+            ],
+            "--seed",
+        );
     }
 }

@@ -1,6 +1,6 @@
 //! `cargo xtask`: the project's set-up and the README's two commands.
 //!
-//! - `cargo xtask demo`  — the main job (grows with the project).
+//! - `cargo xtask demo`  — the main job.
 //! - `cargo xtask test`  — every test in the workspace.
 //! - `cargo xtask setup` — only the set-up both of them do first.
 //! - `cargo xtask cargo ARGS…` — any cargo command with libtorch configured (clippy, bench, run).
@@ -134,8 +134,8 @@ fn test(extra: &[String]) -> Result<(), String> {
     )
 }
 
-/// The main job: the whole mission in simulation (scripted controller until the phase
-/// policies are trained), the unit model it runs on, and a unit's CAN start-up against
+/// The main job: the whole mission in simulation (flown by the scripted controller), the unit
+/// model it runs on, and a unit's CAN start-up against
 /// emulated drives. Everything lands in `runs/demo/`.
 fn demo() -> Result<(), String> {
     let venv = setup()?;

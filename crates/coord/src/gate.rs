@@ -333,7 +333,7 @@ mod tests {
 
     #[test]
     fn measured_events_fire_after_their_debounce() {
-        let c = GateConfig::default();
+        let c = GateConfig::shipped().unwrap();
         let loaded = [30.0, 30.0];
         let free = [1.0, 0.5];
         // (phase, measurements, ticks to leave): each event at its threshold, debounced.
@@ -377,7 +377,7 @@ mod tests {
 
     #[test]
     fn hysteresis_keeps_counting_through_noise_and_a_dip_restarts_it() {
-        let c = GateConfig::default();
+        let c = GateConfig::shipped().unwrap();
         let h = c.lift.payload_height_min_m;
         let mut gate = PhaseGate::new(&c);
         let forces = [30.0, 30.0];
@@ -426,7 +426,7 @@ mod tests {
 
     #[test]
     fn a_phase_change_restarts_the_debounce() {
-        let c = GateConfig::default();
+        let c = GateConfig::shipped().unwrap();
         let mut gate = PhaseGate::new(&c);
         let m = measured(0.0, 0.0, &[0.0, 0.0]);
         // A condition held for 100 ticks in Transport counts nothing toward Place.
@@ -441,7 +441,7 @@ mod tests {
 
     #[test]
     fn after_a_safety_stop_only_a_new_start_leaves_idle() {
-        let c = GateConfig::default();
+        let c = GateConfig::shipped().unwrap();
         let mut gate = PhaseGate::new(&c);
         let lifted = measured(0.5, 0.0, &[0.0, 0.0]);
         assert_eq!(
@@ -469,7 +469,7 @@ mod tests {
                 1..200,
             ),
         ) {
-            let mut gate = PhaseGate::new(&GateConfig::default());
+            let mut gate = PhaseGate::new(&GateConfig::shipped().unwrap());
             let mut current = start_phase;
             for (height, goal, f0, f1, start, sigma) in ticks {
                 let forces = [f0, f1];

@@ -8,7 +8,8 @@
 //!   target (eqs. stacked_state … stacked_metric) and names the subsystem that limits it;
 //! - [`message`]: versioned peer messages and their validation;
 //! - [`model`]: the unit kinematics the clamp evaluates (arm FK on a differential-drive base);
-//! - [`config`]: `configs/sync.toml`, `configs/gate.toml` and unit-model files.
+//! - [`config`]: `configs/sync.toml`, `configs/gate.toml` and the team settings a daemon
+//!   derives from `configs/unit.toml`.
 //!
 //! Per tick a unit validates and [`team::Team::receive`]s its messages, calls
 //! [`team::Team::tick`] (gate + agreement), runs the active policy when told to, and calls
@@ -22,8 +23,8 @@ pub mod model;
 pub mod team;
 
 pub use clamp::{Clamp, ClampInput, ClampReport, HoldReason};
-pub use config::{GateConfig, SyncConfig};
+pub use config::{GateConfig, SyncConfig, TeamError, TeamSettings};
 pub use gate::{Measurements, PhaseGate};
 pub use message::{Envelope, Validator};
 pub use model::UnitModel;
-pub use team::{Decision, Directive, Team, TeamSettings};
+pub use team::{Decision, Directive, Team};

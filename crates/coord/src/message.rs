@@ -14,12 +14,12 @@
 //! dropped as reordered without losing anything: every announcement is repeated on later ticks
 //! for as long as it matters.
 //!
-//! Conventions the transport (a later issue) must keep: `stamp_us` is the sender's clock, which
+//! Conventions every transport must keep: `stamp_us` is the sender's clock, which
 //! is synchronized across the team (e.g. PTP), in µs; `seq` increases by at least one per
 //! message of a sender and starts at the sender's boot time in µs, so a rebooted sender never
 //! reuses sequence numbers.
 
-use crate::team::TeamSettings;
+use crate::config::TeamSettings;
 use moonhaul_core::state::{Phase, UnitCommand, UnitState};
 use serde::{Deserialize, Serialize};
 

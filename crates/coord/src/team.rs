@@ -21,70 +21,13 @@
 //! and a silent peer stops every unit as soon as its last state is older than the bound.
 
 use crate::clamp::HoldReason;
-use crate::config::AgreementConfig;
+use crate::config::{AgreementConfig, TeamError, TeamSettings};
 use crate::gate::{next_phase, Measurements, PhaseEvents, PhaseGate};
 use crate::message::{
     Announcements, Body, Envelope, FaultKind, OperatorCommand, Sender, StopReason, Transition,
 };
 use crate::GateConfig;
 use moonhaul_core::state::Phase;
-
-/// Who this unit is and how its team runs; the daemon fills it from `configs/unit.toml`.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TeamSettings {
-    /// Messages naming another team are rejected.
-    pub team: String,
-    pub team_size: usize,
-    /// This unit's index, 0-based.
-    pub unit_index: usize,
-    pub control_period_us: u64,
-    /// A peer whose latest state is older than this many control periods stops every unit.
-    pub peer_staleness_periods: u32,
-}
-
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum TeamError {
-    #[error("team_size must be at least 1")]
-    EmptyTeam,
-    #[error("unit_index {index} is outside a team of {team_size}")]
-    UnitIndex { index: usize, team_size: usize },
-    #[error("team name must not be empty")]
-    EmptyName,
-    #[error("control_period_us must be positive")]
-    ZeroPeriod,
-    #[error("peer_staleness_periods must be at least 1")]
-    ZeroStaleness,
-}
-
-impl TeamSettings {
-    /// The staleness bound in µs.
-    pub fn staleness_us(&self) -> u64 {
-        self.control_period_us
-            .saturating_mul(self.peer_staleness_periods.into())
-    }
-
-    pub fn validate(&self) -> Result<(), TeamError> {
-        if self.team_size == 0 {
-            return Err(TeamError::EmptyTeam);
-        }
-        if self.unit_index >= self.team_size {
-            return Err(TeamError::UnitIndex {
-                index: self.unit_index,
-                team_size: self.team_size,
-            });
-        }
-        if self.team.is_empty() {
-            return Err(TeamError::EmptyName);
-        }
-        if self.control_period_us == 0 {
-            return Err(TeamError::ZeroPeriod);
-        }
-        if self.peer_staleness_periods == 0 {
-            return Err(TeamError::ZeroStaleness);
-        }
-        Ok(())
-    }
-}
 
 /// What this unit does this tick.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -5,6 +5,7 @@
 //! velocities followed by the seven arm joint positions (paper, eq. for a_t).
 
 use serde::{Deserialize, Serialize};
+use std::time::Duration;
 
 /// Driven wheels per differential-drive wheel module.
 pub const WHEEL_JOINTS: usize = 2;
@@ -70,6 +71,19 @@ impl std::str::FromStr for Phase {
             .find(|p| p.name() == s)
             .ok_or_else(|| UnknownPhase(s.to_owned()))
     }
+}
+
+/// One feedback sample of N joints. `effort_nm` is `None` where the motors do not report it.
+/// What a hardware backend reads once per tick; [`WheelJoints`] and [`ArmJoints`] are the
+/// parts of it a unit's state keeps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointReading<const N: usize> {
+    pub position_rad: [f64; N],
+    pub velocity_radps: [f64; N],
+    /// Joint torque, N·m.
+    pub effort_nm: Option<[f64; N]>,
+    /// Time of the sample on the driver's clock (simulated for mocks and the virtual bus).
+    pub stamp: Duration,
 }
 
 /// Positions and velocities of a unit's two driven wheels (left, right).

@@ -69,16 +69,7 @@ pub enum HalError {
     Can(#[from] can::CanError),
 }
 
-/// One feedback sample of N joints. `effort_nm` is `None` where the motors do not report it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct JointReading<const N: usize> {
-    pub position_rad: [f64; N],
-    pub velocity_radps: [f64; N],
-    /// Joint torque, N·m.
-    pub effort_nm: Option<[f64; N]>,
-    /// Time of the sample on the driver's clock (simulated for mocks and the virtual bus).
-    pub stamp: Duration,
-}
+pub use moonhaul_core::state::JointReading;
 
 /// Power-stage control and the control period, shared by both drive kinds.
 pub trait Drive {

@@ -90,7 +90,8 @@ pub fn load(path: &Path, ppo: &mut Ppo, task: Task) -> Result<Progress, LearnErr
         path: path.to_path_buf(),
         reason,
     };
-    let bytes = std::fs::read(path).map_err(LearnError::io(path))?;
+    let bytes = moonhaul_core::input::read_capped(path, moonhaul_core::input::MAX_CHECKPOINT_BYTES)
+        .map_err(|e| bad(e.to_string()))?;
     let file = SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
     let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| bad(e.to_string()))?;
     let meta = header.metadata().clone().unwrap_or_default();

@@ -86,15 +86,7 @@ impl EpisodeStats {
 
 /// A well-mixed per-iteration seed, so a resumed run draws fresh, reproducible randomness.
 pub fn iteration_seed(seed: u64, iteration: usize) -> u64 {
-    // SplitMix64 finaliser of seed + iteration·golden-ratio.
-    let mut z = seed.wrapping_add(
-        (iteration as u64)
-            .wrapping_add(1)
-            .wrapping_mul(0x9E37_79B9_7F4A_7C15),
-    );
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+    moonhaul_core::seed::stream_seed(seed, iteration as u64)
 }
 
 /// Flat f64 rows as an f32 tensor `[rows, cols]`.

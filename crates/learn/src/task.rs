@@ -10,15 +10,15 @@ use crate::env::VecEnv;
 use crate::pendulum::PendulumVecEnv;
 use crate::LearnError;
 
-/// `num_envs` environments of `task`; the robot phase tasks are an error until the
-/// simulator's batched envs exist.
+/// `num_envs` environments of `task`. The robot phase tasks have no reward, reset or
+/// termination in this build and are refused with a clear error.
 pub fn make_env(task: Task, num_envs: usize) -> Result<Box<dyn VecEnv>, LearnError> {
     match task {
         Task::Pendulum => Ok(Box::new(PendulumVecEnv::new(num_envs))),
         Task::Lift | Task::Transport | Task::Place => Err(LearnError::TaskUnavailable {
             task: task.name().into(),
-            reason: "the phase tasks need the simulator's batched environments, which this build \
-                     does not have yet; only `pendulum` can be trained"
+            reason: "this build defines no reward, reset or termination for the phase tasks; \
+                     only `pendulum` can be trained"
                 .into(),
         }),
     }

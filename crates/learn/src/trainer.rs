@@ -47,6 +47,71 @@ pub struct TrainSummary {
     pub wall_s: f64,
 }
 
+/// Longest run name accepted, bytes: the run folder's name, well under any file system's
+/// limit on one path component (255 bytes).
+pub const MAX_RUN_NAME_BYTES: usize = 128;
+
+/// The default run folder, `runs/<name>`, for a run name that is one plain folder name: not
+/// empty, not `.`/`..` or containing `..`, no `/`, `\` or control characters, and at most
+/// [`MAX_RUN_NAME_BYTES`] long, so the run can never land outside `runs/`.
+pub fn default_run_dir(name: &str) -> Result<PathBuf, LearnError> {
+    let reason = if name.is_empty() {
+        Some("is empty".to_owned())
+    } else if name.len() > MAX_RUN_NAME_BYTES {
+        Some(format!(
+            "is {} bytes long, more than {MAX_RUN_NAME_BYTES}",
+            name.len()
+        ))
+    } else if name.contains("..") || name == "." {
+        Some(format!("{name:?} may not be `.` or contain `..`"))
+    } else if name.contains(['/', '\\']) || name.chars().any(char::is_control) {
+        Some(format!(
+            "{name:?} may not contain `/`, `\\` or control characters"
+        ))
+    } else {
+        None
+    };
+    match reason {
+        Some(reason) => Err(LearnError::InvalidConfig {
+            field: "run.name".into(),
+            reason: format!("must be one plain folder name: {reason}"),
+        }),
+        None => Ok(Path::new("runs").join(name)),
+    }
+}
+
+/// Creates the run folder and its `checkpoints/`; an existing path that is not a folder is
+/// an error naming it, not a confusing failure further down.
+fn prepare_run_dir(dir: &Path) -> Result<PathBuf, LearnError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(LearnError::Io {
+            path: dir.to_owned(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "the run folder exists and is not a folder",
+            ),
+        });
+    }
+    let checkpoints = dir.join("checkpoints");
+    std::fs::create_dir_all(&checkpoints).map_err(LearnError::io(&checkpoints))?;
+    Ok(checkpoints)
+}
+
+/// `num_envs × steps_per_env × width`, the size of the largest rollout tensor, or an error
+/// if it does not fit in a tensor dimension product (i64).
+fn rollout_size(config: &TrainConfig, width: usize) -> Result<i64, LearnError> {
+    let (envs, steps) = (config.env.num_envs, config.env.steps_per_env);
+    envs.checked_mul(steps)
+        .and_then(|batch| batch.checked_mul(width.max(1)))
+        .and_then(|size| i64::try_from(size).ok())
+        .ok_or_else(|| LearnError::InvalidConfig {
+            field: "env.num_envs".into(),
+            reason: format!(
+                "num_envs {envs} × steps_per_env {steps} × {width} values per step overflows"
+            ),
+        })
+}
+
 pub fn checkpoint_path(run_dir: &Path, iteration: usize) -> PathBuf {
     run_dir
         .join("checkpoints")
@@ -61,9 +126,9 @@ pub fn train(
 ) -> Result<TrainSummary, LearnError> {
     let start = Instant::now();
     let dir = &options.run_dir;
-    let checkpoints = dir.join("checkpoints");
-    std::fs::create_dir_all(&checkpoints).map_err(LearnError::io(&checkpoints))?;
-    write_atomic(&dir.join("config.toml"), config.to_toml().as_bytes())?;
+    // Before anything is allocated from it or written: the rollout batch must be countable.
+    rollout_size(config, 1)?;
+    prepare_run_dir(dir)?;
 
     let threads = i32::try_from(config.run.threads).unwrap_or(i32::MAX);
     tch::set_num_threads(threads);
@@ -72,6 +137,7 @@ pub fn train(
     let env = make_env(task, config.env.num_envs)?;
     let eval_env = make_env(task, config.run.eval_episodes)?;
     let (obs_dim, action_dim) = (env.obs_dim(), env.action_dim());
+    rollout_size(config, obs_dim.max(action_dim))?;
     let policy = ActorCritic::new(obs_dim, action_dim, &config.policy);
     let mut ppo = Ppo::new(
         policy,
@@ -85,6 +151,9 @@ pub fn train(
         Some(path) => checkpoint::load(path, &mut ppo, task)?,
         None => Progress::default(),
     };
+    // Only once the checkpoint to resume proved usable: a failed resume leaves the run's
+    // resolved config as it was.
+    write_atomic(&dir.join("config.toml"), config.to_toml().as_bytes())?;
     let mut metrics = MetricsLog::open(
         &dir.join("metrics.csv"),
         options.resume.as_ref().map(|_| progress.iteration),
@@ -159,4 +228,41 @@ pub fn train(
         stopped,
         wall_s: start.elapsed().as_secs_f64(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_names_that_leave_runs_are_refused() {
+        assert_eq!(
+            default_run_dir("pendulum-2").unwrap(),
+            Path::new("runs/pendulum-2")
+        );
+        let long = "x".repeat(MAX_RUN_NAME_BYTES + 1);
+        for bad in [
+            "", ".", "..", "a..b", "../x", "a/b", "/abs", "a\\b", "a\nb", &long,
+        ] {
+            let err = default_run_dir(bad).unwrap_err();
+            assert!(
+                matches!(&err, LearnError::InvalidConfig { field, .. } if field == "run.name"),
+                "{bad:?}: {err}"
+            );
+        }
+        assert!(default_run_dir(&"x".repeat(MAX_RUN_NAME_BYTES)).is_ok());
+    }
+
+    #[test]
+    fn a_run_folder_that_is_a_file_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("run");
+        std::fs::write(&file, "").unwrap();
+        let err = prepare_run_dir(&file).unwrap_err();
+        assert!(
+            matches!(&err, LearnError::Io { path, .. } if path == &file),
+            "{err}"
+        );
+        assert!(prepare_run_dir(&dir.path().join("new")).unwrap().is_dir());
+    }
 }

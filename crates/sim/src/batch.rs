@@ -6,22 +6,16 @@
 //! allocations are rapier's internal buffers, which reach their steady size in the first steps,
 //! and resets, which rebuild a world.
 
+use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::UnitCommand;
 use rayon::prelude::*;
 
 use crate::scene::{Env, EnvOptions, EnvState, SceneModel, UNITS};
 use crate::SimError;
 
-/// The seed of env `index` in a batch seeded with `seed` (SplitMix64 of both, so neighbouring
-/// envs get unrelated streams).
+/// The seed of env `index` in a batch seeded with `seed` (see [`stream_seed`]).
 pub fn env_seed(seed: u64, index: usize) -> u64 {
-    let mut z = seed
-        ^ (index as u64)
-            .wrapping_add(1)
-            .wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+    stream_seed(seed, index as u64)
 }
 
 /// N worlds, their latest states, and the thread pool that steps them.
@@ -136,17 +130,5 @@ impl BatchEnv {
                     Ok(())
                 })
         })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn env_seeds_differ_and_repeat() {
-        assert_eq!(env_seed(7, 3), env_seed(7, 3));
-        assert_ne!(env_seed(7, 3), env_seed(7, 4));
-        assert_ne!(env_seed(7, 3), env_seed(8, 3));
     }
 }

@@ -7,15 +7,59 @@
 //! Ctrl-C stops after the current iteration and keeps a checkpoint of it; a second Ctrl-C
 //! exits at once.
 
-use std::path::PathBuf;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
+use moonhaul_core::input::MAX_CHECKPOINT_BYTES;
 use moonhaul_learn::config::TrainConfig;
-use moonhaul_learn::trainer::{train, TrainOptions};
+use moonhaul_learn::trainer::{default_run_dir, train, TrainOptions};
+
+/// A `--resume` checkpoint must be a regular file of sane size (not a folder, FIFO or device,
+/// which would block or exhaust memory when read); returns its run folder,
+/// `<run>/checkpoints/<file>` → `<run>`, or an error if it is not inside one.
+fn check_resume(ckpt: &Path) -> Result<PathBuf> {
+    let meta = std::fs::metadata(ckpt)
+        .with_context(|| format!("--resume {}: cannot read the checkpoint", ckpt.display()))?;
+    if !meta.is_file() {
+        bail!("--resume {}: not a regular file", ckpt.display());
+    }
+    if meta.len() > MAX_CHECKPOINT_BYTES {
+        bail!(
+            "--resume {}: {} bytes, more than the {MAX_CHECKPOINT_BYTES} a checkpoint may have",
+            ckpt.display(),
+            meta.len()
+        );
+    }
+    let folder = ckpt.parent().filter(|p| !p.as_os_str().is_empty());
+    match folder {
+        Some(folder) if folder.file_name().is_some_and(|n| n == "checkpoints") => Ok(folder
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_owned()),
+        _ => bail!(
+            "--resume {}: not in a `<run>/checkpoints/` folder, so the run folder is unknown; \
+             pass it with --out",
+            ckpt.display()
+        ),
+    }
+}
+
+/// `--out` must be a folder or not exist yet.
+fn check_out(out: &Path) -> Result<()> {
+    if out.as_os_str().is_empty() {
+        bail!("--out must not be empty");
+    }
+    if out.exists() && !out.is_dir() {
+        bail!("--out {}: exists and is not a folder", out.display());
+    }
+    Ok(())
+}
 
 #[derive(Debug, Parser)]
 #[command(
@@ -44,15 +88,15 @@ fn main() -> Result<()> {
     if let Some(seed) = args.seed {
         config.run.seed = seed;
     }
-    let run_dir = match (&args.out, &args.resume) {
-        (Some(out), _) => out.clone(),
-        // <run>/checkpoints/<file> -> <run>
-        (None, Some(ckpt)) => ckpt
-            .parent()
-            .and_then(|p| p.parent())
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from(".")),
-        (None, None) => PathBuf::from("runs").join(&config.run.name),
+    let resume_dir = args.resume.as_deref().map(check_resume).transpose()?;
+    let run_dir = match (&args.out, resume_dir) {
+        (Some(out), _) => {
+            check_out(out)?;
+            out.clone()
+        }
+        (None, Some(dir)) => dir,
+        (None, None) => default_run_dir(&config.run.name)
+            .with_context(|| format!("training config {}", args.config.display()))?,
     };
 
     let stop = Arc::new(AtomicBool::new(false));
@@ -100,7 +144,9 @@ fn main() -> Result<()> {
     })?;
     bar.finish();
 
-    println!(
+    let mut out = std::io::stdout().lock();
+    writeln!(
+        out,
         "{} after {} iterations, {} env steps, {:.1} s: eval return {}",
         if summary.stopped { "stopped" } else { "done" },
         summary.progress.iteration,
@@ -109,8 +155,10 @@ fn main() -> Result<()> {
         summary
             .eval_return
             .map_or("n/a".into(), |r| format!("{r:.1}"))
-    );
-    println!("checkpoint {}", summary.last_checkpoint.display());
-    println!("policy     {}", summary.policy.display());
+    )
+    .context("cannot write to stdout")?;
+    writeln!(out, "checkpoint {}", summary.last_checkpoint.display())
+        .context("cannot write to stdout")?;
+    writeln!(out, "policy     {}", summary.policy.display()).context("cannot write to stdout")?;
     Ok(())
 }
