@@ -86,8 +86,7 @@ pub fn run(cmd: SimCommand) -> Result<()> {
 }
 
 fn load_scene(config: &Path) -> Result<SceneModel> {
-    let config = SimConfig::load(config)
-        .with_context(|| format!("cannot load simulator config {}", config.display()))?;
+    let config = SimConfig::load(config).context("cannot load the simulator config")?;
     SceneModel::new(config).context("cannot build the simulated scene")
 }
 
@@ -119,8 +118,7 @@ fn prepare_out_dir(out: &Path) -> Result<()> {
 }
 
 fn load_mission(mission: &Path) -> Result<MissionPlan> {
-    MissionPlan::load(mission)
-        .with_context(|| format!("cannot load mission plan {}", mission.display()))
+    MissionPlan::load(mission).context("cannot load the mission plan")
 }
 
 fn demo(
