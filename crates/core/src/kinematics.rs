@@ -79,6 +79,8 @@ pub enum KinematicsError {
     },
     #[error("URDF has no links")]
     NoLinks,
+    #[error("a {element} has an empty name")]
+    EmptyName { element: &'static str },
     #[error("link \"{link}\" is defined more than once")]
     DuplicateLink { link: String },
     #[error("joint \"{joint}\" is defined more than once")]
@@ -99,7 +101,10 @@ pub enum KinematicsError {
     Cycle { link: String },
     #[error("URDF has more than one root link: \"{first}\" and \"{second}\"")]
     MultipleRoots { first: String, second: String },
-    #[error("joint \"{joint}\" has a non-finite origin")]
+    #[error(
+        "joint \"{joint}\" has a non-finite origin or one beyond {} m",
+        physical::MAX_EXTENT_M
+    )]
     NonFiniteOrigin { joint: String },
     #[error("joint \"{joint}\" has a zero or non-finite axis {axis:?}")]
     BadAxis { joint: String, axis: [f64; 3] },
@@ -467,8 +472,7 @@ impl Joint {
                 })
             }
         };
-        let (xyz, [roll, pitch, yaw]) = (joint.origin.xyz.0, joint.origin.rpy.0);
-        if !xyz.iter().chain(&[roll, pitch, yaw]).all(|v| v.is_finite()) {
+        if !physical::pose_is_finite(&joint.origin) {
             return Err(KinematicsError::NonFiniteOrigin { joint: name() });
         }
         let origin = urdf_pose(&joint.origin);
@@ -525,7 +529,11 @@ impl KinematicTree {
         }
         let mut link_ids = HashMap::with_capacity(robot.links.len());
         let mut links = Vec::with_capacity(robot.links.len());
+        let unnamed = |element| KinematicsError::EmptyName { element };
         for link in &robot.links {
+            if link.name.trim().is_empty() {
+                return Err(unnamed("link"));
+            }
             if link_ids.insert(link.name.clone(), links.len()).is_some() {
                 return Err(KinematicsError::DuplicateLink {
                     link: link.name.clone(),
@@ -543,6 +551,9 @@ impl KinematicTree {
         let mut parents: Vec<Option<(usize, usize)>> = vec![None; links.len()];
         let mut children = vec![Vec::new(); links.len()];
         for urdf_joint in &robot.joints {
+            if urdf_joint.name.trim().is_empty() {
+                return Err(unnamed("joint"));
+            }
             if !joint_names.insert(urdf_joint.name.as_str()) {
                 return Err(KinematicsError::DuplicateJoint {
                     joint: urdf_joint.name.clone(),

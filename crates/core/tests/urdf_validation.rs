@@ -454,3 +454,33 @@ fn shipped_and_test_urdfs_pass_every_check() {
         KinematicTree::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
     }
 }
+
+#[test]
+fn implausible_scales_and_empty_names_are_rejected() {
+    let far = r#"<link name="a"/><link name="b"/>
+        <joint name="j" type="fixed"><origin xyz="2000 0 0"/><parent link="a"/><child link="b"/></joint>"#;
+    let cases = [
+        (
+            inertial(&inertia("1e9", UNIT)),
+            vec!["\"arm\"", "exceeds"],
+        ),
+        (far.to_owned(), vec!["\"j\"", "1000 m"]),
+        (
+            geometry("collision", r#"xyz="0 0 0""#, r#"<box size="5000 1 1"/>"#),
+            vec!["\"shape\"", "box size"],
+        ),
+        (
+            geometry("visual", r#"xyz="0 0 1e6""#, r#"<sphere radius="1"/>"#),
+            vec!["\"shape\"", "origin"],
+        ),
+        (r#"<link name=""/>"#.to_owned(), vec!["link has an empty name"]),
+        (
+            r#"<link name="a"/><link name="b"/><joint name=" " type="fixed"><parent link="a"/><child link="b"/></joint>"#
+                .to_owned(),
+            vec!["joint has an empty name"],
+        ),
+    ];
+    for (body, names) in cases {
+        assert_rejected(&body, &names);
+    }
+}

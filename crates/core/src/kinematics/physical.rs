@@ -75,11 +75,18 @@ fn moment(value: f64) -> String {
     }
 }
 
-fn pose_is_finite(pose: &urdf_rs::Pose) -> bool {
+/// Largest distance or size anywhere in a robot model, m: a model a kilometre across is a unit
+/// error (millimetres for metres), not a robot.
+pub const MAX_EXTENT_M: f64 = 1000.0;
+/// Largest mass of one link, kg.
+pub const MAX_LINK_MASS_KG: f64 = 1e5;
+
+/// Finite, with its translation within [`MAX_EXTENT_M`].
+pub(super) fn pose_is_finite(pose: &urdf_rs::Pose) -> bool {
     pose.xyz
         .iter()
-        .chain(pose.rpy.iter())
-        .all(|v| v.is_finite())
+        .all(|v| v.is_finite() && v.abs() <= MAX_EXTENT_M)
+        && pose.rpy.iter().all(|v| v.is_finite())
 }
 
 fn fmt_pose(pose: &urdf_rs::Pose) -> String {
@@ -123,7 +130,10 @@ fn check_inertial(link: &urdf_rs::Link) -> Result<(), KinematicsError> {
         inertia,
     } = &link.inertial;
     if !pose_is_finite(origin) {
-        return Err(bad(format!("origin is not finite ({})", fmt_pose(origin))));
+        return Err(bad(format!(
+            "origin is not finite or beyond {MAX_EXTENT_M} m ({})",
+            fmt_pose(origin)
+        )));
     }
     let mass = mass.value;
     if !mass.is_finite() {
@@ -131,6 +141,11 @@ fn check_inertial(link: &urdf_rs::Link) -> Result<(), KinematicsError> {
     }
     if mass < 0.0 {
         return Err(bad(format!("mass {mass} kg is negative")));
+    }
+    if mass > MAX_LINK_MASS_KG {
+        return Err(bad(format!(
+            "mass {mass:?} kg exceeds {MAX_LINK_MASS_KG:?} kg for one link"
+        )));
     }
     let urdf_rs::Inertia {
         ixx,
@@ -194,16 +209,19 @@ fn check_geometry(
         reason,
     };
     if !pose_is_finite(origin) {
-        return Err(bad(format!("origin is not finite ({})", fmt_pose(origin))));
+        return Err(bad(format!(
+            "origin is not finite or beyond {MAX_EXTENT_M} m ({})",
+            fmt_pose(origin)
+        )));
     }
-    let positive = |v: &f64| v.is_finite() && *v > 0.0;
+    let positive = |v: &f64| v.is_finite() && *v > 0.0 && *v <= MAX_EXTENT_M;
     match geometry {
         urdf_rs::Geometry::Box { size } if !size.iter().all(positive) => Err(bad(format!(
-            "box size {:?} m must be finite and > 0",
+            "box size {:?} m must be finite, > 0 and at most {MAX_EXTENT_M} m",
             size.0
         ))),
         urdf_rs::Geometry::Sphere { radius } if !positive(radius) => Err(bad(format!(
-            "sphere radius {radius} m must be finite and > 0"
+            "sphere radius {radius} m must be finite, > 0 and at most {MAX_EXTENT_M} m"
         ))),
         urdf_rs::Geometry::Cylinder { radius, length }
         | urdf_rs::Geometry::Capsule { radius, length }
@@ -214,7 +232,7 @@ fn check_geometry(
                 _ => "capsule",
             };
             Err(bad(format!(
-                "{shape} radius {radius} m and length {length} m must be finite and > 0"
+                "{shape} radius {radius} m and length {length} m must be finite, > 0 and at most {MAX_EXTENT_M} m"
             )))
         }
         urdf_rs::Geometry::Mesh {

@@ -151,11 +151,22 @@ impl Validate for UnitCanConfig {
     }
 
     fn validate(&self) -> Result<(), FieldError> {
-        if self.interface.is_empty() || self.interface.len() > 15 {
-            // IFNAMSIZ - 1: Linux interface names have at most 15 bytes.
+        // IFNAMSIZ - 1: Linux interface names have at most 15 bytes, and never '/', ':',
+        // whitespace or the names "." and "..".
+        let name_ok = (1..=15).contains(&self.interface.len())
+            && self.interface != "."
+            && self.interface != ".."
+            && self
+                .interface
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b"_-.".contains(&b));
+        if !name_ok {
             return Err(FieldError::new(
                 "interface",
-                format!("{:?} must have 1 to 15 bytes", self.interface),
+                format!(
+                    "{:?} must be 1 to 15 ASCII letters, digits, '_', '-' or '.'",
+                    self.interface
+                ),
             ));
         }
         let period = self.sync_period_s;
@@ -355,6 +366,10 @@ pub(crate) mod tests {
                      rated_torque_nm = 0.32\n\n# Emulated drives";
         let err = with("# Emulated drives", extra).unwrap_err().to_string();
         assert!(err.contains("arm") && err.contains("8"), "{err}");
+        let err = with("interface = \"can0\"", "interface = \"can0/../x\"")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("interface"), "{err}");
         // A watchdog shorter than what it watches.
         let err = with("feedback_timeout_s = 0.1", "feedback_timeout_s = 0.01")
             .unwrap_err()
