@@ -70,8 +70,10 @@ impl MissionPlan {
     }
 }
 
-/// Longest phase of the plan, s: a minute-long lift or a kilometre-long drive is a typo.
+/// Longest phase or pause of the plan, s: anything longer than ten minutes is a typo.
 const MAX_PHASE_S: f64 = 600.0;
+/// Longest whole scripted mission, s.
+const MAX_MISSION_S: f64 = 1800.0;
 
 impl Validate for MissionPlan {
     fn validate(&self) -> Result<(), FieldError> {
@@ -100,7 +102,19 @@ impl Validate for MissionPlan {
         in_range("place_press_m", self.place_press_m, 0.0, 0.1)?;
         positive("along_gain_per_s", self.along_gain_per_s, 100.0)?;
         positive("heading_gain_per_s", self.heading_gain_per_s, 100.0)?;
-        positive("cross_gain_per_ms", self.cross_gain_per_ms, 100.0)
+        positive("cross_gain_per_ms", self.cross_gain_per_ms, 100.0)?;
+        // Each value may be in range and the mission still last for days: bound the whole.
+        let duration_s = self.duration_s();
+        if duration_s > MAX_MISSION_S {
+            return Err(FieldError::new(
+                "distance_m",
+                format!(
+                    "the plan lasts {duration_s:.0} s (distance / speed, descent / touchdown \
+                     speed and every pause), more than {MAX_MISSION_S} s"
+                ),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -405,6 +419,42 @@ pub fn run_mission(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bad_plans_are_named_by_file_and_field() {
+        let path = config::repo_file("configs/mission.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let cases = [
+            ("speed_mps = 0.2", "speed_mps = 0.0", "speed_mps"),
+            ("speed_mps = 0.2", "speed_mps = 1e-6", "distance_m"),
+            ("distance_m = 2.0", "distance_m = -2.0", "distance_m"),
+            (
+                "lift_height_m = 0.3",
+                "lift_height_m = nan",
+                "lift_height_m",
+            ),
+            ("hold_s = 1.0", "hold_s = 1e9", "hold_s"),
+            (
+                "approach_height_m = 0.04",
+                "approach_height_m = 0.5",
+                "approach_height_m",
+            ),
+            (
+                "settle_s = 1.0",
+                "settle_s = 1.0\nsettle_time = 2.0",
+                "settle_time",
+            ),
+        ];
+        for (from, to, field) in cases {
+            assert!(text.contains(from), "{from}");
+            let err = config::parse::<MissionPlan>(&text.replace(from, to), &path).unwrap_err();
+            let message = err.to_string();
+            assert!(
+                message.contains(field) && message.contains("mission.toml"),
+                "{field}: {message}"
+            );
+        }
+    }
 
     #[test]
     fn the_plan_lifts_drives_the_distance_and_comes_back_down() {
