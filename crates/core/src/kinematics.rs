@@ -368,11 +368,19 @@ impl Motion {
             value,
             expected,
         };
-        const POSITIVE: &str = "a finite number > 0";
         const NON_NEGATIVE: &str = "a finite number >= 0";
-        for (field, value) in [("limit effort", effort), ("limit velocity", velocity)] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(bad(field, value, POSITIVE));
+        // Far above any actuator (a 1 MN·m joint, 1 km/s): beyond them the number is a typo.
+        for (field, value, max, expected) in [
+            ("limit effort", effort, MAX_EFFORT, "in (0, 1e6] N·m or N"),
+            (
+                "limit velocity",
+                velocity,
+                MAX_VELOCITY,
+                "in (0, 1000] rad/s or m/s",
+            ),
+        ] {
+            if !(value.is_finite() && value > 0.0 && value <= max) {
+                return Err(bad(field, value, expected));
             }
         }
         if let Some(dynamics) = &joint.dynamics {
@@ -389,9 +397,15 @@ impl Motion {
             // URDF continuous joints have no position limits, whatever `<limit>` says.
             (lower, upper) = (f64::NEG_INFINITY, f64::INFINITY);
         } else {
+            // A revolute joint of more than 16 turns either way, or a prismatic one longer
+            // than the largest model, is a typo.
+            let (max, expected) = match kind {
+                MotionKind::Prismatic => (physical::MAX_EXTENT_M, "finite, within ±1000 m"),
+                _ => (MAX_REVOLUTE_RAD, "finite, within ±100 rad"),
+            };
             for (field, value) in [("limit lower", lower), ("limit upper", upper)] {
-                if !value.is_finite() {
-                    return Err(bad(field, value, "a finite number"));
+                if !(value.is_finite() && value.abs() <= max) {
+                    return Err(bad(field, value, expected));
                 }
             }
             if lower > upper {
@@ -425,6 +439,13 @@ impl Motion {
         }
     }
 }
+
+/// Largest joint effort limit, N·m or N.
+const MAX_EFFORT: f64 = 1e6;
+/// Largest joint velocity limit, rad/s or m/s.
+const MAX_VELOCITY: f64 = 1e3;
+/// Largest |position limit| of a revolute joint, rad (about 16 turns).
+const MAX_REVOLUTE_RAD: f64 = 100.0;
 
 /// A URDF `origin` (xyz, fixed-axis rpy) as an isometry: R = Rz(yaw)·Ry(pitch)·Rx(roll).
 pub fn urdf_pose(pose: &urdf_rs::Pose) -> Isometry3<f64> {

@@ -473,6 +473,18 @@ fn implausible_scales_and_empty_names_are_rejected() {
             geometry("visual", r#"xyz="0 0 1e6""#, r#"<sphere radius="1"/>"#),
             vec!["\"shape\"", "origin"],
         ),
+        (
+            joint("revolute", &limit("-1e6", "1", "1", "1")),
+            vec!["\"j\"", "limit lower"],
+        ),
+        (
+            joint("prismatic", &limit("0", "1", "1", "1e9")),
+            vec!["\"j\"", "limit velocity"],
+        ),
+        (
+            joint("continuous", &limit("0", "0", "1e300", "1")),
+            vec!["\"j\"", "limit effort"],
+        ),
         (r#"<link name=""/>"#.to_owned(), vec!["link has an empty name"]),
         (
             r#"<link name="a"/><link name="b"/><joint name=" " type="fixed"><parent link="a"/><child link="b"/></joint>"#

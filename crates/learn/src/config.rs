@@ -231,6 +231,19 @@ impl Validate for TrainConfig {
             if ppo.min_lr > ppo.max_lr {
                 return Err(FieldError::new("min_lr", "must not exceed ppo.max_lr"));
             }
+            // The adaptive schedule keeps the rate in [min_lr, max_lr]; it must start there.
+            if ppo.schedule == Schedule::Adaptive
+                && !(ppo.min_lr..=ppo.max_lr).contains(&ppo.learning_rate)
+            {
+                return Err(FieldError::new(
+                    "learning_rate",
+                    format!(
+                        "{:?} must lie in [min_lr, max_lr] = [{:?}, {:?}] for the adaptive \
+                         schedule",
+                        ppo.learning_rate, ppo.min_lr, ppo.max_lr
+                    ),
+                ));
+            }
             positive("reward_scale", ppo.reward_scale, 1e6)?;
             positive("gamma", ppo.gamma, 1.0)?;
             in_range("lambda", ppo.lambda, 0.0, 1.0)?;
@@ -320,6 +333,10 @@ mod tests {
                 "run.task",
             ),
             (text.replace("gamma = 0.98", "gamma = 1.5"), "ppo.gamma"),
+            (
+                text.replace("learning_rate = 0.001", "learning_rate = 0.5"),
+                "ppo.learning_rate",
+            ),
             (
                 text.replace("num_envs = ", "num_envs = 0 #"),
                 "env.num_envs",

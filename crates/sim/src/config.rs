@@ -177,7 +177,9 @@ impl Validate for SimConfig {
                     ),
                 )
             })?;
-            in_range("gravity_mps2", p.gravity_mps2, -30.0, 0.0)?;
+            // Downward, from the Moon's -1.62 to well past Earth's: a world without gravity
+            // has no ground contact to learn from.
+            in_range("gravity_mps2", p.gravity_mps2, -30.0, -0.1)?;
             count(
                 "num_internal_pgs_iterations",
                 p.num_internal_pgs_iterations as u64,

@@ -109,20 +109,47 @@ impl UnitCanConfig {
         Duration::from_secs_f64(self.sync_period_s)
     }
 
-    /// The drives' joints must be `spec`'s, in its order; the error names both.
+    /// The drives' joints must be `spec`'s, in its order (the error names both), and every
+    /// joint's whole range must fit the drive's 32-bit counts: an arm joint's position limits
+    /// (CSP), a wheel's velocity limit (CSV), each times counts per radian.
     pub fn check_joints(&self, spec: &UnitSpec) -> Result<(), FieldError> {
         let sides = [
-            ("wheels", &self.wheels[..], &spec.wheel_joints[..]),
-            ("arm", &self.arm[..], &spec.arm_joints[..]),
+            (
+                "wheels",
+                &self.wheels[..],
+                &spec.wheel_joints[..],
+                &spec.wheel_limits[..],
+            ),
+            (
+                "arm",
+                &self.arm[..],
+                &spec.arm_joints[..],
+                &spec.arm_limits[..],
+            ),
         ];
-        for (side, drives, joints) in sides {
-            for (i, (drive, joint)) in drives.iter().zip(joints).enumerate() {
+        for (side, drives, joints, limits) in sides {
+            for (i, ((drive, joint), limit)) in drives.iter().zip(joints).zip(limits).enumerate() {
+                let field = |name: &str| format!("{side}[{i}].{name}");
                 if drive.joint != *joint {
                     return Err(FieldError::new(
-                        format!("{side}[{i}].joint"),
+                        field("joint"),
                         format!(
                             "\"{}\" is not the unit URDF's {side} joint {i}, \"{joint}\"",
                             drive.joint
+                        ),
+                    ));
+                }
+                let extreme = match drive.mode {
+                    OperationMode::Csp => limit.lower.abs().max(limit.upper.abs()),
+                    OperationMode::Csv => limit.velocity,
+                };
+                let counts = extreme * drive.counts_per_rad().abs();
+                if counts > f64::from(i32::MAX) {
+                    return Err(FieldError::new(
+                        field("gear_ratio"),
+                        format!(
+                            "counts_per_rev × gear_ratio turns \"{joint}\"'s URDF limit \
+                             {extreme:?} into {counts:.3e} counts, beyond a drive's 32-bit range"
                         ),
                     ));
                 }
@@ -211,6 +238,12 @@ impl Validate for UnitCanConfig {
             "state_change_timeout_s",
             self.state_change_timeout_s,
             MAX_TIMEOUT_S,
+        )?;
+        strictly_longer(
+            "state_change_timeout_s",
+            self.state_change_timeout_s,
+            period,
+            "the control period",
         )?;
         section("emulator", || {
             let e = &self.emulator;
@@ -366,6 +399,16 @@ pub(crate) mod tests {
                      rated_torque_nm = 0.32\n\n# Emulated drives";
         let err = with("# Emulated drives", extra).unwrap_err().to_string();
         assert!(err.contains("arm") && err.contains("8"), "{err}");
+        let err = with(
+            "counts_per_rev = 16384\ngear_ratio = 100.0",
+            "counts_per_rev = 16777216\ngear_ratio = 1000.0",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("arm[0].gear_ratio") && err.contains("32-bit"),
+            "{err}"
+        );
         let err = with("interface = \"can0\"", "interface = \"can0/../x\"")
             .unwrap_err()
             .to_string();
