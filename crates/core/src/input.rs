@@ -18,6 +18,9 @@ pub const MAX_POLICY_BYTES: u64 = 64 << 20;
 /// Largest training checkpoint accepted, bytes (actor, critic and Adam state of the widest
 /// network a config allows stay well under it).
 pub const MAX_CHECKPOINT_BYTES: u64 = 1 << 30;
+/// Largest run log read back on resume (`metrics.csv`), bytes: a million iterations of
+/// ~200-byte rows.
+pub const MAX_RUN_LOG_BYTES: u64 = 256 << 20;
 /// Largest candump log accepted for replay, bytes (~10 min of one unit's bus at 50 Hz).
 pub const MAX_CANDUMP_BYTES: u64 = 256 << 20;
 

@@ -12,6 +12,9 @@ pub enum LearnError {
         #[source]
         source: std::io::Error,
     },
+    /// A file the trainer reads back (a run log) is missing, not a file, or too large.
+    #[error(transparent)]
+    Input(#[from] moonhaul_core::input::InputError),
     /// A training config cannot be read, parsed or validated.
     #[error(transparent)]
     Config(#[from] moonhaul_core::config::ConfigError),

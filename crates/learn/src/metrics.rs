@@ -156,12 +156,13 @@ impl MetricsLog {
 }
 
 fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, LearnError> {
-    let text = std::fs::read_to_string(path).map_err(LearnError::io(path))?;
     let bad = |line: usize, reason: String| LearnError::Metrics {
         path: path.to_path_buf(),
         line,
         reason,
     };
+    let text =
+        moonhaul_core::input::read_capped_text(path, moonhaul_core::input::MAX_RUN_LOG_BYTES)?;
     let mut lines = text.lines();
     if lines.next() != Some(HEADER) {
         return Err(bad(1, "header differs from this build's columns".into()));
