@@ -23,17 +23,22 @@ use super::KinematicsError;
 /// inequality with equality, can miss it by a few parts in 10⁶ after rounding.
 pub const INERTIA_REL_TOL: f64 = 1e-5;
 
+/// The six URDF inertia entries with their attribute names.
+fn entries(i: &urdf_rs::Inertia) -> [(&'static str, f64); 6] {
+    [
+        ("ixx", i.ixx),
+        ("ixy", i.ixy),
+        ("ixz", i.ixz),
+        ("iyy", i.iyy),
+        ("iyz", i.iyz),
+        ("izz", i.izz),
+    ]
+}
+
 /// The principal moments of inertia (kg·m²), ascending: the eigenvalues of the symmetric
 /// inertia matrix the six URDF entries describe. NaN if an entry is not finite.
 pub fn principal_moments(inertia: &urdf_rs::Inertia) -> [f64; 3] {
-    let urdf_rs::Inertia {
-        ixx,
-        ixy,
-        ixz,
-        iyy,
-        iyz,
-        izz,
-    } = *inertia;
+    let [ixx, ixy, ixz, iyy, iyz, izz] = entries(inertia).map(|(_, v)| v);
     let values = [ixx, ixy, ixz, iyy, iyz, izz];
     if !values.iter().all(|v| v.is_finite()) {
         return [f64::NAN; 3];
@@ -147,27 +152,12 @@ fn check_inertial(link: &urdf_rs::Link) -> Result<(), KinematicsError> {
             "mass {mass:?} kg exceeds {MAX_LINK_MASS_KG:?} kg for one link"
         )));
     }
-    let urdf_rs::Inertia {
-        ixx,
-        ixy,
-        ixz,
-        iyy,
-        iyz,
-        izz,
-    } = *inertia;
-    for (name, value) in [
-        ("ixx", ixx),
-        ("ixy", ixy),
-        ("ixz", ixz),
-        ("iyy", iyy),
-        ("iyz", iyz),
-        ("izz", izz),
-    ] {
+    for (name, value) in entries(inertia) {
         if !value.is_finite() {
             return Err(bad(format!("inertia {name} is {value}, not finite")));
         }
     }
-    let no_inertia = [ixx, ixy, ixz, iyy, iyz, izz].iter().all(|&v| v == 0.0);
+    let no_inertia = entries(inertia).iter().all(|&(_, v)| v == 0.0);
     if mass == 0.0 && !no_inertia {
         return Err(bad(
             "mass is 0 kg but the inertia is not zero: a mass must be positive (a frame link \
