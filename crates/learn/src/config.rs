@@ -10,6 +10,8 @@ use moonhaul_core::config::{
 };
 use serde::{Deserialize, Serialize};
 
+use crate::reward::RewardConfig;
+
 /// A whole training config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -18,6 +20,9 @@ pub struct TrainConfig {
     pub env: EnvConfig,
     pub policy: PolicyConfig,
     pub ppo: PpoConfig,
+    /// Table II's tolerances and weights: required for the phase tasks, absent for benchmark
+    /// tasks (which bring their own reward).
+    pub reward: Option<RewardConfig>,
 }
 
 /// What to train and how the run is driven.
@@ -222,6 +227,25 @@ impl Validate for TrainConfig {
             }
             positive("init_std", policy.init_std, 100.0)
         })?;
+        match (self.run.task, &self.reward) {
+            (Task::Pendulum, Some(_)) => {
+                return Err(FieldError::new(
+                    "reward",
+                    "the pendulum task brings its own reward; remove [reward]",
+                ))
+            }
+            (Task::Pendulum, None) => {}
+            (task, None) => {
+                return Err(FieldError::new(
+                    "reward",
+                    format!(
+                        "the {} task needs a [reward] section (Table II)",
+                        task.name()
+                    ),
+                ))
+            }
+            (_, Some(reward)) => section("reward", || reward.validate())?,
+        }
         section("ppo", || {
             positive("learning_rate", ppo.learning_rate, 1.0)?;
             positive("desired_kl", ppo.desired_kl, 1.0)?;
@@ -359,6 +383,17 @@ mod tests {
                 "ppo.epochs",
             ),
         ];
+        let lift = repo_config("lift").to_toml();
+        let without_reward = lift[..lift.find("[reward]").unwrap()].to_owned();
+        let table = &lift[lift.find("[reward]").unwrap()..];
+        let cases = cases.into_iter().chain([
+            (without_reward, "reward"),
+            (format!("{text}\n{table}"), "reward"),
+            (
+                lift.replace("tilt_tol_deg = 10.0", "tilt_tol_deg = 0.0"),
+                "reward.tilt_tol_deg",
+            ),
+        ]);
         for (text, field) in cases {
             let err = TrainConfig::parse(&text, Path::new("train.toml")).unwrap_err();
             let message = err.to_string();

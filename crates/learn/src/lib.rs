@@ -7,7 +7,8 @@
 //!
 //! The split follows rsl_rl: [`env`] (what a batched environment offers), [`storage`] (rollout
 //! buffer and GAE), [`ppo`] (the update), [`runner`] (rollout/update loop and evaluation),
-//! [`trainer`] (the run folder: config, metrics, plots, checkpoints, export).
+//! [`trainer`] (the run folder: config, metrics, plots, checkpoints, export). [`reward`] holds
+//! the paper's phase rewards r_L, r_T, r_P with Table II's tolerances and weights.
 
 pub mod actor_critic;
 pub mod adam;
@@ -23,6 +24,7 @@ pub mod normalizer;
 pub mod pendulum;
 pub mod plot;
 pub mod ppo;
+pub mod reward;
 pub mod runner;
 pub mod storage;
 pub mod task;
