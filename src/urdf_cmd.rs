@@ -38,7 +38,8 @@ pub enum UrdfCommand {
         tip: String,
         /// Comma-separated joint values (rad or m), one per movable joint in chain order (from
         /// base up to the common ancestor, then down to tip), e.g. `--q -0.5,1.2`. May be
-        /// omitted when the chain has no movable joints.
+        /// omitted when the chain has no movable joints. Each must lie within its joint's URDF
+        /// position limits.
         #[arg(long, allow_hyphen_values = true, value_name = "Q1,Q2,...")]
         q: Option<String>,
         /// Print one JSON line {"translation":[x,y,z],"rotation_xyzw":[x,y,z,w]} (metres; unit
@@ -277,6 +278,18 @@ fn fk(file: &Path, base: &str, tip: &str, q: &str, json: bool) -> Result<()> {
         .chain(base, tip)
         .with_context(|| format!("in URDF {}", file.display()))?;
     let q = parse_joint_values(q)?;
+    // A configuration the joints cannot reach has no pose worth printing.
+    for ((i, (name, limits)), &value) in chain.joint_names().zip(chain.limits()).enumerate().zip(&q)
+    {
+        if !(limits.lower..=limits.upper).contains(&value) {
+            bail!(
+                "--q entry {} ({value}) is outside joint \"{name}\"'s URDF limits [{}, {}]",
+                i + 1,
+                limits.lower,
+                limits.upper
+            );
+        }
+    }
     let pose = chain.forward(&q).with_context(|| {
         let names: Vec<_> = chain.joint_names().collect();
         format!(

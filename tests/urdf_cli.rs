@@ -234,6 +234,14 @@ fn fk_rejects_wrong_count_and_bad_values() {
             && err.contains("expected 3 joint values, got 2"),
         "{err}"
     );
+    // panda_joint4 reaches [-3.1416, 0] rad: 0.5 is not a configuration of the arm.
+    let err = stderr(&fk(&["--tip", "panda_link4", "--q", "0,0,0,0.5"]));
+    assert!(
+        err.contains("--q entry 4") && err.contains("panda_joint4") && err.contains("-3.1416"),
+        "{err}"
+    );
+    let err = stderr(&fk(&["--tip", "panda_link1", "--q", "1e308"]));
+    assert!(err.contains("panda_joint1"), "{err}");
     let err = stderr(&fk(&["--tip", "panda_link2", "--q", "0.1,abc"]));
     assert!(err.contains(r#"--q entry 2 ("abc")"#), "{err}");
     let err = stderr(&fk(&["--tip", "nose", "--q", "0"]));
