@@ -38,40 +38,20 @@ pub enum InputError {
     NotUtf8 { path: PathBuf, valid_up_to: usize },
 }
 
-impl InputError {
-    /// The file at fault.
-    pub fn path(&self) -> &Path {
-        match self {
-            InputError::Io { path, .. }
-            | InputError::NotAFile { path }
-            | InputError::TooLarge { path, .. }
-            | InputError::NotUtf8 { path, .. } => path,
-        }
-    }
-}
-
 /// Reads a whole regular file of at most `max_bytes`. Refuses anything that is not a regular
 /// file before opening it (opening a FIFO would block), and never reads more than
 /// `max_bytes + 1` bytes, whatever the metadata said (the file may grow meanwhile).
 pub fn read_capped(path: &Path, max_bytes: u64) -> Result<Vec<u8>, InputError> {
+    let len = check_readable(path, max_bytes)?;
     let io_error = |error| InputError::Io {
         path: path.to_owned(),
         error,
     };
-    let metadata = std::fs::metadata(path).map_err(io_error)?;
-    if !metadata.is_file() {
-        return Err(InputError::NotAFile {
-            path: path.to_owned(),
-        });
-    }
     let too_large = || InputError::TooLarge {
         path: path.to_owned(),
         max_bytes,
     };
-    if metadata.len() > max_bytes {
-        return Err(too_large());
-    }
-    let mut bytes = Vec::with_capacity(metadata.len() as usize);
+    let mut bytes = Vec::with_capacity(len as usize);
     File::open(path)
         .and_then(|file| file.take(max_bytes + 1).read_to_end(&mut bytes))
         .map_err(io_error)?;
@@ -79,6 +59,27 @@ pub fn read_capped(path: &Path, max_bytes: u64) -> Result<Vec<u8>, InputError> {
         return Err(too_large());
     }
     Ok(bytes)
+}
+
+/// The checks [`read_capped`] makes before opening: `path` is a regular file of at most
+/// `max_bytes` (returned), so a caller can refuse a bad input before starting long work.
+pub fn check_readable(path: &Path, max_bytes: u64) -> Result<u64, InputError> {
+    let metadata = std::fs::metadata(path).map_err(|error| InputError::Io {
+        path: path.to_owned(),
+        error,
+    })?;
+    if !metadata.is_file() {
+        return Err(InputError::NotAFile {
+            path: path.to_owned(),
+        });
+    }
+    if metadata.len() > max_bytes {
+        return Err(InputError::TooLarge {
+            path: path.to_owned(),
+            max_bytes,
+        });
+    }
+    Ok(metadata.len())
 }
 
 /// [`read_capped`] for text files.

@@ -63,8 +63,6 @@ pub struct UnitSpec {
     pub arm: Chain,
     /// Sum of all link masses, kg.
     pub mass_kg: f64,
-    /// The validated tree the spec was read from.
-    pub tree: KinematicTree,
 }
 
 /// Distance below which two wheel axle coordinates count as equal, m.
@@ -206,7 +204,6 @@ impl UnitSpec {
             wheel_forward_sign,
             arm,
             mass_kg: tree.total_mass(),
-            tree,
         })
     }
 

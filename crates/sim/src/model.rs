@@ -109,16 +109,26 @@ pub struct RobotModel {
     link_frames: HashMap<String, (usize, Isometry3<f64>)>,
 }
 
+/// Reads a URDF with core's size-capped, XML-shape-checked reader; the error names the file
+/// once (`SimError::Model` carries the path).
+pub fn read_urdf(path: &Path) -> Result<urdf_rs::Robot, SimError> {
+    moonhaul_core::kinematics::read_urdf(path).map_err(|e| SimError::Model {
+        path: path.to_owned(),
+        reason: e.without_file().to_string(),
+    })
+}
+
 impl RobotModel {
     /// Reads a URDF; errors name the file and the link or joint at fault.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, SimError> {
-        let path = path.as_ref().to_owned();
-        // Size-capped, XML-shape-checked read; `without_file`: SimError::Model names the file.
-        let robot = moonhaul_core::kinematics::read_urdf(&path).map_err(|e| SimError::Model {
-            path: path.clone(),
-            reason: e.without_file().to_string(),
-        })?;
-        let tree = KinematicTree::from_robot(&robot).map_err(|e| SimError::Model {
+        let path = path.as_ref();
+        Self::from_robot(path, &read_urdf(path)?)
+    }
+
+    /// Splits an already parsed URDF (read from `path`, which errors name) into bodies.
+    pub fn from_robot(path: &Path, robot: &urdf_rs::Robot) -> Result<Self, SimError> {
+        let path = path.to_owned();
+        let tree = KinematicTree::from_robot(robot).map_err(|e| SimError::Model {
             path: path.clone(),
             reason: e.to_string(),
         })?;

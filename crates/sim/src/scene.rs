@@ -44,7 +44,7 @@ use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::*;
 
 use crate::config::SimConfig;
-use crate::model::{RobotModel, Shape};
+use crate::model::{self, RobotModel, Shape};
 use crate::randomization::{CommandNoise, EpisodeDraw, PayloadKind};
 use crate::SimError;
 
@@ -92,11 +92,13 @@ impl SceneModel {
     pub fn new(config: SimConfig) -> Result<Self, SimError> {
         config.validate()?;
         let unit_path = config.unit_urdf();
-        let spec = UnitSpec::from_file(&unit_path).map_err(|e| SimError::Model {
+        // One read of the unit URDF serves the unit description and the rigid bodies.
+        let robot = model::read_urdf(&unit_path)?;
+        let spec = UnitSpec::from_robot(&robot).map_err(|e| SimError::Model {
             path: unit_path.clone(),
             reason: e.to_string(),
         })?;
-        let unit = RobotModel::from_file(&unit_path)?;
+        let unit = RobotModel::from_robot(&unit_path, &robot)?;
         let arm_chain = spec.arm.clone();
         let mut wheel_bodies = [0; WHEEL_JOINTS];
         for (b, name) in wheel_bodies.iter_mut().zip(&spec.wheel_joints) {

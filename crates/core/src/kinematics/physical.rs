@@ -38,8 +38,8 @@ fn entries(i: &urdf_rs::Inertia) -> [(&'static str, f64); 6] {
 /// The principal moments of inertia (kg·m²), ascending: the eigenvalues of the symmetric
 /// inertia matrix the six URDF entries describe. NaN if an entry is not finite.
 pub fn principal_moments(inertia: &urdf_rs::Inertia) -> [f64; 3] {
-    let [ixx, ixy, ixz, iyy, iyz, izz] = entries(inertia).map(|(_, v)| v);
-    let values = [ixx, ixy, ixz, iyy, iyz, izz];
+    let values = entries(inertia).map(|(_, v)| v);
+    let [ixx, ixy, ixz, iyy, iyz, izz] = values;
     if !values.iter().all(|v| v.is_finite()) {
         return [f64::NAN; 3];
     }

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use moonhaul_core::input::MAX_CHECKPOINT_BYTES;
+use moonhaul_core::input::{check_readable, MAX_CHECKPOINT_BYTES};
 use moonhaul_learn::config::TrainConfig;
 use moonhaul_learn::trainer::{default_run_dir, train, TrainOptions};
 
@@ -23,18 +23,7 @@ use moonhaul_learn::trainer::{default_run_dir, train, TrainOptions};
 /// which would block or exhaust memory when read); returns its run folder,
 /// `<run>/checkpoints/<file>` → `<run>`, or an error if it is not inside one.
 fn check_resume(ckpt: &Path) -> Result<PathBuf> {
-    let meta = std::fs::metadata(ckpt)
-        .with_context(|| format!("--resume {}: cannot read the checkpoint", ckpt.display()))?;
-    if !meta.is_file() {
-        bail!("--resume {}: not a regular file", ckpt.display());
-    }
-    if meta.len() > MAX_CHECKPOINT_BYTES {
-        bail!(
-            "--resume {}: {} bytes, more than the {MAX_CHECKPOINT_BYTES} a checkpoint may have",
-            ckpt.display(),
-            meta.len()
-        );
-    }
+    check_readable(ckpt, MAX_CHECKPOINT_BYTES).context("--resume")?;
     let folder = ckpt.parent().filter(|p| !p.as_os_str().is_empty());
     match folder {
         Some(folder) if folder.file_name().is_some_and(|n| n == "checkpoints") => Ok(folder
