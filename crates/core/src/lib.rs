@@ -16,12 +16,15 @@
 //! - [`kinematics`]: URDF kinematic trees, forward kinematics between any two links, limits.
 //! - [`unit`]: a wheel–arm unit as its URDF describes it, and differential-drive kinematics.
 //! - `plot_font` (feature `plot`): the bundled font of every PNG plot.
+//! - [`observation`]: a unit's actor observation o⁽ⁱ⁾, the one function training and the
+//!   onboard daemon share, and its recorded layout.
 //! - [`policy`]: the onboard policy runtime (a pure-Rust MLP loaded from safetensors).
 
 pub mod atomic_file;
 pub mod config;
 pub mod input;
 pub mod kinematics;
+pub mod observation;
 #[cfg(feature = "plot")]
 pub mod plot_font;
 pub mod policy;
