@@ -135,6 +135,7 @@ fn demo(
     let options = EnvOptions {
         randomize,
         payload: Some(payload),
+        start_lift_m: 0.0,
     };
     let mut env = Env::new(&scene, seed, options).context("cannot create the env")?;
     let mut rows = Vec::new();
@@ -284,6 +285,7 @@ fn scripted_commands(
         EnvOptions {
             randomize: false,
             payload: None,
+            start_lift_m: 0.0,
         },
     )?;
     let mut state = env.state(scene);

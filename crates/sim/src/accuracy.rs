@@ -79,6 +79,7 @@ fn trace(scene: &SceneModel, plan: MissionPlan) -> Result<Trace, SimError> {
     let options = EnvOptions {
         randomize: false,
         payload: Some(PayloadKind::Box),
+        start_lift_m: 0.0,
     };
     let mut env = Env::new(scene, 0, options)?;
     let weight_n =

@@ -23,6 +23,7 @@ pub struct BatchEnv {
     scene: SceneModel,
     envs: Vec<Env>,
     states: Vec<EnvState>,
+    options: EnvOptions,
     pool: rayon::ThreadPool,
 }
 
@@ -53,7 +54,46 @@ impl BatchEnv {
             scene,
             envs,
             states,
+            options,
             pool,
+        })
+    }
+
+    /// Rebuilds every env from `seed` (as [`BatchEnv::new`] would), keeping the thread pool.
+    pub fn reseed(&mut self, seed: u64) -> Result<(), SimError> {
+        let (scene, options) = (&self.scene, self.options);
+        let (envs, states) = (&mut self.envs, &mut self.states);
+        self.pool.install(|| {
+            envs.par_iter_mut()
+                .zip(states.par_iter_mut())
+                .enumerate()
+                .try_for_each(|(i, (env, state))| {
+                    *env = Env::new(scene, env_seed(seed, i), options)?;
+                    env.state_into(scene, state);
+                    Ok(())
+                })
+        })
+    }
+
+    /// Runs `f` on every env, its latest state and its entry of `slots`, in parallel on the
+    /// batch's pool: how a task steps, observes and resets each world in one pass.
+    pub fn for_each_with<T, E>(
+        &mut self,
+        slots: &mut [T],
+        f: impl Fn(&SceneModel, &mut Env, &mut EnvState, &mut T) -> Result<(), E> + Sync,
+    ) -> Result<(), E>
+    where
+        T: Send,
+        E: Send,
+    {
+        assert_eq!(slots.len(), self.envs.len(), "one slot per env");
+        let scene = &self.scene;
+        let (envs, states) = (&mut self.envs, &mut self.states);
+        self.pool.install(|| {
+            envs.par_iter_mut()
+                .zip(states.par_iter_mut())
+                .zip(slots.par_iter_mut())
+                .try_for_each(|((env, state), slot)| f(scene, env, state, slot))
         })
     }
 

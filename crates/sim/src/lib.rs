@@ -8,6 +8,7 @@
 //! - [`randomization`] and [`terrain`]: the paper's domain randomization.
 //! - [`scene`]: one world ([`scene::Env`]) — formation, multibodies, grasps, readout.
 //! - [`batch`]: many worlds stepped in parallel, deterministically.
+//! - [`task`]: the lift, transport and place episodes that training and evaluation share.
 //! - [`scripted`]: the non-learned lift → transport → place controller; [`accuracy`]: the
 //!   configured solver settings against a fine reference.
 
@@ -22,6 +23,7 @@ pub mod model;
 pub mod randomization;
 pub mod scene;
 pub mod scripted;
+pub mod task;
 pub mod terrain;
 
 pub use accuracy::AccuracyReport;

@@ -65,6 +65,41 @@ pub struct PayloadModel {
     /// Arm joint positions that put the end effector on the payload's side face, at the height
     /// of the payload's centre when it rests on flat ground.
     pub grasp_q_rad: [f64; ARM_JOINTS],
+    /// The grasp configuration followed up the lift: entry k at a lift of
+    /// k·[`grasp::MAX_LIFT_M`]/[`grasp::LIFT_CHECKS`] (fewer entries if the arm cannot reach the
+    /// top).
+    lift_path_q_rad: Vec<[f64; ARM_JOINTS]>,
+}
+
+impl PayloadModel {
+    /// The grasp configuration lifted by `lift_m` (clamped to the reachable path), linearly
+    /// interpolated between the 5 mm steps of the IK path.
+    pub fn lift_q(&self, lift_m: f64) -> [f64; ARM_JOINTS] {
+        let step = grasp::MAX_LIFT_M / grasp::LIFT_CHECKS as f64;
+        let last = self.lift_path_q_rad.len() - 1;
+        let x = (lift_m / step).clamp(0.0, last as f64);
+        let (k, frac) = (x.floor() as usize, x.fract());
+        let (a, b) = (
+            self.lift_path_q_rad[k],
+            self.lift_path_q_rad[(k + 1).min(last)],
+        );
+        std::array::from_fn(|j| a[j] + (b[j] - a[j]) * frac)
+    }
+
+    /// The highest lift the arm configuration path reaches, m.
+    pub fn max_lift_m(&self) -> f64 {
+        (self.lift_path_q_rad.len() - 1) as f64 * grasp::MAX_LIFT_M / grasp::LIFT_CHECKS as f64
+    }
+
+    /// Per arm joint, the largest distance from the rest grasp along the lift path, rad.
+    pub fn lift_envelope_rad(&self) -> [f64; ARM_JOINTS] {
+        std::array::from_fn(|j| {
+            self.lift_path_q_rad
+                .iter()
+                .map(|q| (q[j] - self.grasp_q_rad[j]).abs())
+                .fold(0.0, f64::max)
+        })
+    }
 }
 
 /// Everything the worlds share: models, the arm chain, the grasp configurations. Built once.
@@ -138,13 +173,14 @@ impl SceneModel {
                     })
                 }
             };
-            let grasp_q_rad = scene.solve_grasp(&half_extents_m)?;
+            let lift_path_q_rad = scene.solve_grasp(&half_extents_m)?;
             scene.payloads.insert(
                 kind,
                 PayloadModel {
                     model,
                     half_extents_m,
-                    grasp_q_rad,
+                    grasp_q_rad: lift_path_q_rad[0],
+                    lift_path_q_rad,
                 },
             );
         }
@@ -174,6 +210,9 @@ pub struct EnvOptions {
     pub randomize: bool,
     /// Forces this payload instead of drawing one.
     pub payload: Option<PayloadKind>,
+    /// Lift at which the episode starts, m: 0 grasps the payload resting on the ground; more
+    /// starts it held aloft by that much (transport and place start lifted).
+    pub start_lift_m: f64,
 }
 
 impl Default for EnvOptions {
@@ -181,6 +220,7 @@ impl Default for EnvOptions {
         EnvOptions {
             randomize: true,
             payload: None,
+            start_lift_m: 0.0,
         }
     }
 }

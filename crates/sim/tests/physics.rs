@@ -37,6 +37,7 @@ fn scripted_mission_is_stable_for_every_payload_with_randomization() {
             EnvOptions {
                 randomize: true,
                 payload: Some(payload),
+                start_lift_m: 0.0,
             },
         )
         .unwrap();
@@ -124,6 +125,7 @@ fn grasps_release_and_break_above_the_configured_limit() {
     let options = EnvOptions {
         randomize: false,
         payload: Some(PayloadKind::Box),
+        start_lift_m: 0.0,
     };
     let mut env = Env::new(&scene, 0, options).unwrap();
     let s = run_mission(&scene, &mut env, MissionPlan::shipped().unwrap(), |_, _| {}).unwrap();

@@ -9,10 +9,10 @@ use crate::ik::{self, IkSettings};
 use crate::SimError;
 
 /// Highest lift the grasp configuration must allow, m (the paper's largest lift target).
-const MAX_LIFT_M: f64 = 0.75;
+pub const MAX_LIFT_M: f64 = 0.75;
 /// Steps in which the grasp configuration is tracked up the lift (5 mm each): small enough
 /// that IK follows one branch, as the scripted controller does.
-const LIFT_CHECKS: usize = 150;
+pub const LIFT_CHECKS: usize = 150;
 
 /// The end-effector orientation of a grasp in the base frame: approach (z) along the base's
 /// +Y toward the payload, paddle x pointing down.
@@ -37,11 +37,12 @@ impl SceneModel {
 
     /// IK from a small set of elbow-up/elbow-down seeds. A seed's solution is followed up
     /// the whole lift range (the paper's targets reach [`MAX_LIFT_M`]); the configuration
-    /// that lifts farthest, then stays farthest from its joint limits, wins.
+    /// that lifts farthest, then stays farthest from its joint limits, wins. Returns its path:
+    /// entry k is the arm configuration at a lift of k·[`MAX_LIFT_M`]/[`LIFT_CHECKS`].
     pub(super) fn solve_grasp(
         &self,
         half_extents_m: &Vector3<f64>,
-    ) -> Result<[f64; ARM_JOINTS], SimError> {
+    ) -> Result<Vec<[f64; ARM_JOINTS]>, SimError> {
         let limits: Vec<_> = self.arm_chain.limits().copied().collect();
         let margin = |q: &[f64; ARM_JOINTS]| {
             q.iter()
@@ -50,7 +51,7 @@ impl SceneModel {
                 .fold(f64::INFINITY, f64::min)
         };
         let settings = IkSettings::default();
-        let mut best: Option<(usize, f64, [f64; ARM_JOINTS])> = None;
+        let mut best: Option<(usize, f64, Vec<[f64; ARM_JOINTS]>)> = None;
         let h = std::f64::consts::FRAC_PI_2;
         for seed in (0..16).map(|k| {
             let s = |bit: usize| if k & (1 << bit) == 0 { 1.0 } else { -1.0 };
@@ -65,6 +66,7 @@ impl SceneModel {
                 continue;
             };
             let (mut q, mut reached, mut worst) = (q0, 0, margin(&q0));
+            let mut path = vec![q0];
             for k in 1..=LIFT_CHECKS {
                 let lift = MAX_LIFT_M * k as f64 / LIFT_CHECKS as f64;
                 match ik::solve(
@@ -73,15 +75,21 @@ impl SceneModel {
                     &q,
                     &settings,
                 ) {
-                    Ok(next) => (q, reached, worst) = (next, k, worst.min(margin(&next))),
+                    Ok(next) => {
+                        (q, reached, worst) = (next, k, worst.min(margin(&next)));
+                        path.push(next);
+                    }
                     Err(_) => break,
                 }
             }
-            if best.is_none_or(|(r, m, _)| (reached, worst) > (r, m)) {
-                best = Some((reached, worst, q0));
+            if best
+                .as_ref()
+                .is_none_or(|(r, m, _)| (reached, worst) > (*r, *m))
+            {
+                best = Some((reached, worst, path));
             }
         }
-        best.map(|(_, _, q)| q).ok_or_else(|| {
+        best.map(|(_, _, path)| path).ok_or_else(|| {
             SimError::Kinematics(format!(
                 "no arm configuration reaches the grasp at {:?}",
                 self.grasp_target(half_extents_m, 0.0)

@@ -106,7 +106,7 @@ impl Env {
                 ),
                 rotation,
             );
-            let mut q = payload_model.grasp_q_rad;
+            let mut q = payload_model.lift_q(options.start_lift_m);
             for (q, dq) in q.iter_mut().zip(draw.initial_joint_offset_rad[i]) {
                 *q += dq;
             }
@@ -138,13 +138,21 @@ impl Env {
         let body = &payload_model.model.bodies[0];
         let inertia = body.inertia;
         let scale = draw.payload_mass_scale;
-        let payload = world.insert_body(
+        // A lifted start holds the payload still (kinematic) while the arms settle onto it, as
+        // a fixture would; it turns dynamic once the grasps hold it.
+        let lifted = options.start_lift_m > 0.0;
+        let payload_builder = if lifted {
+            RigidBodyBuilder::kinematic_position_based()
+        } else {
             RigidBodyBuilder::dynamic()
+        };
+        let payload = world.insert_body(
+            payload_builder
                 .can_sleep(false)
                 .pose(to_pose(&Isometry3::translation(
                     0.0,
                     0.0,
-                    under + he.z + SPAWN_CLEARANCE_M,
+                    under + he.z + SPAWN_CLEARANCE_M + options.start_lift_m,
                 )))
                 .additional_mass_properties(MassProperties::with_inertia_matrix(
                     to_vector(&inertia.com_m),
@@ -197,6 +205,11 @@ impl Env {
             env.world.step();
         }
         env.attach_grasps(scene);
+        if lifted {
+            if let Some(rb) = env.world.bodies.get_mut(env.payload) {
+                rb.set_body_type(RigidBodyType::Dynamic, true);
+            }
+        }
         Ok(env)
     }
 }

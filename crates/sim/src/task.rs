@@ -1,0 +1,759 @@
+//! The phase tasks (lift, transport, place) as episodes of one simulated world: how an episode
+//! starts, what each unit senses and observes, how raw actions become motor commands, and when
+//! an episode ends. Training (`moonhaul-learn`'s phase envs, which add the paper's rewards) and
+//! evaluation (`moonhaul eval`, no libtorch) share this one definition.
+//!
+//! **Episodes** (settings in `configs/tasks.toml`):
+//! - *Lift* starts grasped with the payload resting on the ground; the goal height h* is drawn
+//!   uniformly from `lift.goal_height_m` and given to the policy, so one policy serves every
+//!   target. The bases should hold still: their goal is where they start.
+//! - *Transport* starts with the payload held `transport.start_height_m` up and moves it
+//!   `distance_m` along +X under a trapezoidal velocity command (accelerate at `accel_mps2`,
+//!   cruise at `speed_mps`, decelerate to stop at p_B). The reward's p_B is the profile's
+//!   reference point at that instant (reaching the goal p_B when the profile ends): with a
+//!   fixed p_B the position term would pay a policy to run ahead of v_cmd, contradicting the
+//!   paper's velocity tracking result.
+//! - *Place* starts held aloft near p_B (drawn within ±`place.goal_offset_m` of the start along
+//!   X); it ends released: the grasps open once the payload has touched the ground for
+//!   `release_after_contact_s` (the gripper is not part of u⁽ⁱ⁾).
+//!
+//! **Terminations** (no value beyond them): a grasp broke by overload; the payload tilted past
+//! `safety.max_tilt_deg` (a safety bound, far above the 10° reward tolerance); the world
+//! diverged (non-finite state). **Truncation** (bootstrapped): the phase's `duration_s`.
+//!
+//! **Sensing.** Each unit sees its encoders with Gaussian noise (`[sensing]`) and its base
+//! pose by integrating the *sensed* wheel velocities from the known start pose (wheel odometry,
+//! as onboard; wheel slip makes it drift from the truth). The actor observation is
+//! [`moonhaul_core::observation::unit_observation`] of those readings; the critic additionally
+//! sees privileged truth ([`CRITIC_EXTRA`]).
+//!
+//! **Actions.** u⁽ⁱ⁾ = `offset + scale ⊙ a` (raw policy output a ∈ ℝ⁹): wheels around 0 with
+//! `action.wheel_scale_radps`; arm joints around the phase's starting grasp (at rest for lift,
+//! lifted for transport and place) of the first training payload,
+//! each scaled to `action.arm_scale_margin` × the distance that joint travels along the grasp's
+//! lift path (at least `arm_scale_min_rad`). The map is what the policy file records; the
+//! joint limits clamp the result in the simulator as the HAL's limits do onboard.
+
+use moonhaul_core::config::Validate;
+use moonhaul_core::config::{self, in_range, interval, positive, section, ConfigError, FieldError};
+use moonhaul_core::observation::{
+    relative_pose, unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM,
+};
+use moonhaul_core::seed::stream_seed;
+use moonhaul_core::state::{
+    Phase, PlanarPose, UnitCommand, UnitState, ARM_JOINTS, UNIT_ACTION_DIM, WHEEL_JOINTS,
+};
+use nalgebra::Vector2;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+use crate::scene::{Env, EnvOptions, EnvState, SceneModel, UNITS};
+use crate::SimError;
+
+/// Encoder noise of the simulated units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Sensing {
+    pub arm_position_noise_std_rad: f64,
+    pub arm_velocity_noise_std_radps: f64,
+    pub wheel_velocity_noise_std_radps: f64,
+}
+
+/// The raw-action → command map.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionSettings {
+    pub wheel_scale_radps: f64,
+    pub arm_scale_margin: f64,
+    pub arm_scale_min_rad: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Safety {
+    /// Payload tilt that ends an episode, degrees.
+    pub max_tilt_deg: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LiftTask {
+    pub duration_s: f64,
+    /// h* is drawn uniformly from this range, m.
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
+    pub goal_height_m: [f64; 2],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransportTask {
+    pub duration_s: f64,
+    /// h*: the payload starts and should stay this high, m.
+    pub start_height_m: f64,
+    pub distance_m: f64,
+    pub speed_mps: f64,
+    pub accel_mps2: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaceTask {
+    pub duration_s: f64,
+    pub start_height_m: f64,
+    /// p_B lies within ± this of the start along X, m.
+    pub goal_offset_m: f64,
+    /// Ground contact this long opens the grasps, s.
+    pub release_after_contact_s: f64,
+}
+
+/// `configs/tasks.toml`: every phase task's settings (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskConfig {
+    pub sensing: Sensing,
+    pub action: ActionSettings,
+    pub safety: Safety,
+    pub lift: LiftTask,
+    pub transport: TransportTask,
+    pub place: PlaceTask,
+}
+
+/// Longest phase episode, s.
+const MAX_EPISODE_S: f64 = 120.0;
+
+impl Validate for TaskConfig {
+    fn validate(&self) -> Result<(), FieldError> {
+        section("sensing", || {
+            let s = &self.sensing;
+            in_range(
+                "arm_position_noise_std_rad",
+                s.arm_position_noise_std_rad,
+                0.0,
+                0.1,
+            )?;
+            in_range(
+                "arm_velocity_noise_std_radps",
+                s.arm_velocity_noise_std_radps,
+                0.0,
+                1.0,
+            )?;
+            in_range(
+                "wheel_velocity_noise_std_radps",
+                s.wheel_velocity_noise_std_radps,
+                0.0,
+                1.0,
+            )
+        })?;
+        section("action", || {
+            let a = &self.action;
+            positive("wheel_scale_radps", a.wheel_scale_radps, 100.0)?;
+            positive("arm_scale_margin", a.arm_scale_margin, 10.0)?;
+            positive("arm_scale_min_rad", a.arm_scale_min_rad, 6.3)
+        })?;
+        section("safety", || {
+            positive("max_tilt_deg", self.safety.max_tilt_deg, 90.0)
+        })?;
+        section("lift", || {
+            positive("duration_s", self.lift.duration_s, MAX_EPISODE_S)?;
+            interval("goal_height_m", self.lift.goal_height_m, 0.0, 0.75)
+        })?;
+        section("transport", || {
+            let t = &self.transport;
+            positive("duration_s", t.duration_s, MAX_EPISODE_S)?;
+            positive("start_height_m", t.start_height_m, 0.75)?;
+            positive("distance_m", t.distance_m, 2.5)?;
+            positive("speed_mps", t.speed_mps, 1.0)?;
+            positive("accel_mps2", t.accel_mps2, 10.0)?;
+            let profile = self.profile();
+            if profile.duration_s() > t.duration_s {
+                return Err(FieldError::new(
+                    "duration_s",
+                    format!(
+                        "the velocity profile takes {:.1} s, longer than the episode",
+                        profile.duration_s()
+                    ),
+                ));
+            }
+            Ok(())
+        })?;
+        section("place", || {
+            let p = &self.place;
+            positive("duration_s", p.duration_s, MAX_EPISODE_S)?;
+            positive("start_height_m", p.start_height_m, 0.75)?;
+            in_range("goal_offset_m", p.goal_offset_m, 0.0, 1.0)?;
+            in_range(
+                "release_after_contact_s",
+                p.release_after_contact_s,
+                0.0,
+                p.duration_s,
+            )
+        })
+    }
+}
+
+impl TaskConfig {
+    /// Reads and validates `configs/tasks.toml`; errors name the file and the field.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        config::load(path.as_ref())
+    }
+
+    /// The shipped `configs/tasks.toml` of this source tree (tests and benches).
+    pub fn shipped() -> Result<Self, ConfigError> {
+        Self::load(config::repo_file("configs/tasks.toml"))
+    }
+
+    /// The transport's velocity profile.
+    pub fn profile(&self) -> VelocityProfile {
+        let t = &self.transport;
+        VelocityProfile {
+            distance_m: t.distance_m,
+            speed_mps: t.speed_mps,
+            accel_mps2: t.accel_mps2,
+        }
+    }
+
+    /// Episode length of `phase`, s.
+    pub fn duration_s(&self, phase: Phase) -> f64 {
+        match phase {
+            Phase::Lift => self.lift.duration_s,
+            Phase::Transport => self.transport.duration_s,
+            Phase::Place | Phase::Idle => self.place.duration_s,
+        }
+    }
+
+    /// The lift an episode of `phase` starts at, m.
+    pub fn start_lift_m(&self, phase: Phase) -> f64 {
+        match phase {
+            Phase::Transport => self.transport.start_height_m,
+            Phase::Place => self.place.start_height_m,
+            Phase::Lift | Phase::Idle => 0.0,
+        }
+    }
+}
+
+/// A trapezoidal speed profile from rest to rest over a distance: accelerate, cruise,
+/// decelerate (a triangle when the distance is too short to reach the cruise speed).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VelocityProfile {
+    pub distance_m: f64,
+    pub speed_mps: f64,
+    pub accel_mps2: f64,
+}
+
+impl VelocityProfile {
+    /// The peak speed actually reached, m/s.
+    fn peak_mps(&self) -> f64 {
+        self.speed_mps
+            .min((self.distance_m * self.accel_mps2).sqrt())
+    }
+
+    /// Time from start to stop, s.
+    pub fn duration_s(&self) -> f64 {
+        let v = self.peak_mps();
+        self.distance_m / v + v / self.accel_mps2
+    }
+
+    /// Commanded speed at `t_s` after the start, m/s.
+    pub fn speed_at(&self, t_s: f64) -> f64 {
+        let (v, a, end) = (self.peak_mps(), self.accel_mps2, self.duration_s());
+        if t_s <= 0.0 || t_s >= end {
+            0.0
+        } else {
+            (a * t_s).min(v).min(a * (end - t_s))
+        }
+    }
+
+    /// Distance covered by `t_s`, m (the integral of [`Self::speed_at`]).
+    pub fn travelled_at(&self, t_s: f64) -> f64 {
+        let (v, a, end) = (self.peak_mps(), self.accel_mps2, self.duration_s());
+        let ramp = v / a;
+        let t = t_s.clamp(0.0, end);
+        let up = 0.5 * a * t.min(ramp).powi(2);
+        let cruise = v * (t.min(end - ramp) - ramp).max(0.0);
+        let down = if t > end - ramp {
+            let d = t - (end - ramp);
+            v * d - 0.5 * a * d * d
+        } else {
+            0.0
+        };
+        up + cruise + down
+    }
+}
+
+/// Extra critic inputs after the actor's: true payload height error, tilt, linear and angular
+/// velocity, both grasps' force (over the fair weight share) and torque, wheel friction,
+/// payload mass, the payload's planar error to the reference in the own frame, the fraction of
+/// the episode left and whether the grasps are released.
+pub const CRITIC_EXTRA: usize = 19;
+/// Width of a critic observation.
+pub const CRITIC_OBS_DIM: usize = ACTOR_OBS_DIM + CRITIC_EXTRA;
+
+/// What ended an episode early.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Termination {
+    GraspBroken,
+    Tilted,
+    NonFinite,
+}
+
+/// The answer of [`Episode::advance`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepOutcome {
+    pub terminated: Option<Termination>,
+    pub truncated: bool,
+}
+
+/// One phase task: its settings and action map; shared by all worlds.
+#[derive(Debug, Clone)]
+pub struct PhaseTask {
+    pub phase: Phase,
+    pub config: TaskConfig,
+    action_scale: [f64; UNIT_ACTION_DIM],
+    action_offset: [f64; UNIT_ACTION_DIM],
+    control_period_s: f64,
+    max_steps: u64,
+}
+
+impl PhaseTask {
+    /// The task of `phase` on `scene`; the arm action map is built around the grasp the task
+    /// starts in (resting for lift, lifted for transport and place) of the first training
+    /// payload (`randomization.payloads[0]`), so a zero action holds the start.
+    pub fn new(phase: Phase, config: TaskConfig, scene: &SceneModel) -> Result<Self, SimError> {
+        if phase == Phase::Idle {
+            return Err(SimError::Config {
+                field: "phase",
+                reason: "idle has no task".into(),
+            });
+        }
+        let first = scene.config.randomization.payloads[0];
+        let payload = &scene.payloads[&first];
+        let envelope = payload.lift_envelope_rad();
+        let start_q = payload.lift_q(config.start_lift_m(phase));
+        let a = &config.action;
+        let mut scale = [a.wheel_scale_radps; UNIT_ACTION_DIM];
+        let mut offset = [0.0; UNIT_ACTION_DIM];
+        for j in 0..ARM_JOINTS {
+            scale[WHEEL_JOINTS + j] = (a.arm_scale_margin * envelope[j]).max(a.arm_scale_min_rad);
+            offset[WHEEL_JOINTS + j] = start_q[j];
+        }
+        let control_period_s = 1.0 / scene.config.control_hz;
+        Ok(PhaseTask {
+            phase,
+            action_scale: scale,
+            action_offset: offset,
+            max_steps: (config.duration_s(phase) / control_period_s).round() as u64,
+            control_period_s,
+            config,
+        })
+    }
+
+    pub fn action_scale(&self) -> &[f64; UNIT_ACTION_DIM] {
+        &self.action_scale
+    }
+
+    pub fn action_offset(&self) -> &[f64; UNIT_ACTION_DIM] {
+        &self.action_offset
+    }
+
+    /// Control steps in a full episode.
+    pub fn max_steps(&self) -> u64 {
+        self.max_steps
+    }
+
+    /// How a world must be built for this task.
+    pub fn env_options(&self, randomize: bool, payload: Option<crate::PayloadKind>) -> EnvOptions {
+        EnvOptions {
+            randomize,
+            payload,
+            start_lift_m: self.config.start_lift_m(self.phase),
+        }
+    }
+
+    /// One unit's command for raw action `raw` (`[UNIT_ACTION_DIM]`).
+    pub fn command(&self, raw: &[f64]) -> UnitCommand {
+        let mut u = [0.0; UNIT_ACTION_DIM];
+        for (k, u) in u.iter_mut().enumerate() {
+            *u = self.action_offset[k] + self.action_scale[k] * raw[k];
+        }
+        UnitCommand::from_action(&u)
+    }
+
+    /// The task's random stream for the world seeded with `env_seed` (goals, sensing noise),
+    /// independent of the world's own.
+    pub fn rng(env_seed: u64) -> ChaCha8Rng {
+        ChaCha8Rng::seed_from_u64(stream_seed(env_seed, 0x7a5c))
+    }
+
+    /// Starts an episode on the freshly reset world `env` in state `state`.
+    pub fn begin(
+        &self,
+        scene: &SceneModel,
+        env: &Env,
+        state: &EnvState,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<Episode, SimError> {
+        let c = &self.config;
+        let goal_height_m = match self.phase {
+            Phase::Lift => {
+                let [lo, hi] = c.lift.goal_height_m;
+                if hi > lo {
+                    rng.random_range(lo..hi)
+                } else {
+                    lo
+                }
+            }
+            Phase::Transport => c.transport.start_height_m,
+            Phase::Place | Phase::Idle => 0.0,
+        };
+        let place_offset_m = if self.phase == Phase::Place && c.place.goal_offset_m > 0.0 {
+            rng.random_range(-c.place.goal_offset_m..c.place.goal_offset_m)
+        } else {
+            0.0
+        };
+        let start_base = state.units.map(|u| u.state.base_pose);
+        let payload_start = state.payload.pose.translation.vector.xy();
+        let mut episode = Episode {
+            goal_height_m,
+            place_offset_m,
+            start_base,
+            payload_start,
+            odometry: start_base,
+            sensed: [UnitState::default(); UNITS],
+            // Replaced below once the first readings are sensed.
+            reference: [GraspReference {
+                ee_rest_in_base: nalgebra::Isometry3::identity(),
+                peer_base_rest: PlanarPose::default(),
+            }; UNITS],
+            steps: 0,
+            contact_s: 0.0,
+            released: false,
+        };
+        episode.sense(self, scene, state, rng, false);
+        // The rest grasp is where the arms are now when the payload rests; a lifted start
+        // takes it from the grasp solution (where the mission's lift began).
+        let rest_q = if self.config.start_lift_m(self.phase) > 0.0 {
+            Some(scene.payloads[&env.payload_kind()].grasp_q_rad)
+        } else {
+            None
+        };
+        for i in 0..UNITS {
+            let mut own = episode.sensed[i];
+            if let Some(q) = rest_q {
+                own.arm.position_rad = q;
+            }
+            episode.reference[i] =
+                GraspReference::capture(&scene.spec, &own, &episode.sensed[1 - i])
+                    .map_err(|e| SimError::Kinematics(e.to_string()))?;
+        }
+        Ok(episode)
+    }
+}
+
+/// One world's episode in progress.
+#[derive(Debug, Clone)]
+pub struct Episode {
+    goal_height_m: f64,
+    place_offset_m: f64,
+    start_base: [PlanarPose; UNITS],
+    payload_start: Vector2<f64>,
+    /// Each unit's wheel odometry.
+    odometry: [PlanarPose; UNITS],
+    /// What each unit sensed at the last tick.
+    sensed: [UnitState; UNITS],
+    reference: [GraspReference; UNITS],
+    steps: u64,
+    contact_s: f64,
+    released: bool,
+}
+
+impl Episode {
+    /// Time since the episode began, s.
+    pub fn time_s(&self, task: &PhaseTask) -> f64 {
+        self.steps as f64 * task.control_period_s
+    }
+
+    /// Control steps since the episode began.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// h*, m.
+    pub fn goal_height_m(&self) -> f64 {
+        self.goal_height_m
+    }
+
+    pub fn released(&self) -> bool {
+        self.released
+    }
+
+    /// The payload's planar reference position now (the reward's p_B), world frame.
+    pub fn reference_position_m(&self, task: &PhaseTask) -> Vector2<f64> {
+        let along = match task.phase {
+            Phase::Transport => task.config.profile().travelled_at(self.time_s(task)),
+            Phase::Place => self.place_offset_m,
+            Phase::Lift | Phase::Idle => 0.0,
+        };
+        self.payload_start + Vector2::new(along, 0.0)
+    }
+
+    /// The commanded payload velocity now (v_cmd), world frame.
+    pub fn command_velocity_mps(&self, task: &PhaseTask) -> Vector2<f64> {
+        match task.phase {
+            Phase::Transport => {
+                Vector2::new(task.config.profile().speed_at(self.time_s(task)), 0.0)
+            }
+            _ => Vector2::zeros(),
+        }
+    }
+
+    /// Unit `i`'s phase goal in the world frame.
+    pub fn goal(&self, task: &PhaseTask, i: usize) -> PhaseGoal {
+        let start = &self.start_base[i];
+        let total = match task.phase {
+            Phase::Transport => task.config.transport.distance_m,
+            Phase::Place => self.place_offset_m,
+            Phase::Lift | Phase::Idle => 0.0,
+        };
+        PhaseGoal {
+            height_m: self.goal_height_m,
+            base_goal_m: Vector2::new(start.x_m + total, start.y_m),
+            velocity_mps: self.command_velocity_mps(task),
+        }
+    }
+
+    /// Unit `i`'s rest-grasp reference (what its daemon records when the grasp closes).
+    pub fn reference(&self, i: usize) -> &GraspReference {
+        &self.reference[i]
+    }
+
+    /// What unit `i` sensed at the last tick.
+    pub fn sensed(&self, i: usize) -> &UnitState {
+        &self.sensed[i]
+    }
+
+    /// Unit `i`'s actor observation.
+    pub fn observe(
+        &self,
+        task: &PhaseTask,
+        scene: &SceneModel,
+        i: usize,
+        out: &mut [f64; ACTOR_OBS_DIM],
+    ) -> Result<(), SimError> {
+        unit_observation(
+            &scene.spec,
+            &self.reference[i],
+            &self.sensed[i],
+            &self.sensed[1 - i],
+            &self.goal(task, i),
+            out,
+        )
+        .map_err(|e| SimError::Kinematics(e.to_string()))
+    }
+
+    /// Unit `i`'s critic observation: its actor observation, then privileged truth.
+    pub fn observe_critic(
+        &self,
+        task: &PhaseTask,
+        scene: &SceneModel,
+        env: &Env,
+        state: &EnvState,
+        i: usize,
+        out: &mut [f64],
+    ) -> Result<(), SimError> {
+        let mut actor = [0.0; ACTOR_OBS_DIM];
+        self.observe(task, scene, i, &mut actor)?;
+        out[..ACTOR_OBS_DIM].copy_from_slice(&actor);
+        let p = &state.payload;
+        let draw = env.draw();
+        let mass_kg = scene.payloads[&env.payload_kind()].model.bodies[0]
+            .inertia
+            .mass_kg
+            * draw.payload_mass_scale;
+        let share_n = mass_kg * scene.config.physics.gravity_mps2.abs() / UNITS as f64;
+        let own_pose = &state.units[i].state.base_pose;
+        let error = self.reference_position_m(task) - p.pose.translation.vector.xy();
+        let to_own = relative_pose(
+            &PlanarPose::default(),
+            &PlanarPose {
+                x_m: error.x,
+                y_m: error.y,
+                yaw_rad: 0.0,
+            },
+        );
+        let (sin, cos) = own_pose.yaw_rad.sin_cos();
+        let (ex, ey) = (
+            cos * to_own.x_m + sin * to_own.y_m,
+            -sin * to_own.x_m + cos * to_own.y_m,
+        );
+        let (own, peer) = (&state.units[i].grasp, &state.units[1 - i].grasp);
+        let extra: [f64; CRITIC_EXTRA] = [
+            p.height_m - self.goal_height_m,
+            p.tilt_rad,
+            p.linvel_mps.x,
+            p.linvel_mps.y,
+            p.linvel_mps.z,
+            p.angvel_radps.x,
+            p.angvel_radps.y,
+            p.angvel_radps.z,
+            own.force_n / share_n,
+            peer.force_n / share_n,
+            own.torque_nm / share_n,
+            peer.torque_nm / share_n,
+            draw.wheel_friction,
+            mass_kg / 10.0,
+            ex,
+            ey,
+            1.0 - self.steps as f64 / task.max_steps as f64,
+            f64::from(u8::from(self.released)),
+            f64::from(u8::from(p.ground_contact)),
+        ];
+        out[ACTOR_OBS_DIM..CRITIC_OBS_DIM].copy_from_slice(&extra);
+        Ok(())
+    }
+
+    /// Reads the units' encoders with noise and advances their wheel odometry (`odometry`
+    /// false: at the episode start, where the pose is the known start pose).
+    fn sense(
+        &mut self,
+        task: &PhaseTask,
+        scene: &SceneModel,
+        state: &EnvState,
+        rng: &mut ChaCha8Rng,
+        odometry: bool,
+    ) {
+        let s = &task.config.sensing;
+        let noise = |rng: &mut ChaCha8Rng, std: f64| {
+            if std > 0.0 {
+                Normal::new(0.0, std).map_or(0.0, |d| d.sample(rng))
+            } else {
+                0.0
+            }
+        };
+        for i in 0..UNITS {
+            let truth = &state.units[i].state;
+            let mut sensed = *truth;
+            for q in &mut sensed.arm.position_rad {
+                *q += noise(rng, s.arm_position_noise_std_rad);
+            }
+            for v in &mut sensed.arm.velocity_radps {
+                *v += noise(rng, s.arm_velocity_noise_std_radps);
+            }
+            for v in &mut sensed.wheels.velocity_radps {
+                *v += noise(rng, s.wheel_velocity_noise_std_radps);
+            }
+            if odometry {
+                self.odometry[i] = scene.spec.integrate_base(
+                    &self.odometry[i],
+                    &sensed.wheels.velocity_radps,
+                    task.control_period_s,
+                );
+            }
+            sensed.base_pose = self.odometry[i];
+            sensed.base_velocity = scene.spec.base_velocity(&sensed.wheels.velocity_radps);
+            self.sensed[i] = sensed;
+        }
+    }
+
+    /// After the world stepped into `state`: senses, counts time, opens the grasps when a
+    /// placement has touched down, and says whether the episode ended.
+    pub fn advance(
+        &mut self,
+        task: &PhaseTask,
+        scene: &SceneModel,
+        env: &mut Env,
+        state: &mut EnvState,
+        rng: &mut ChaCha8Rng,
+    ) -> StepOutcome {
+        self.steps += 1;
+        if !state.is_finite() {
+            return StepOutcome {
+                terminated: Some(Termination::NonFinite),
+                truncated: false,
+            };
+        }
+        self.sense(task, scene, state, rng, true);
+        if task.phase == Phase::Place && !self.released {
+            if state.payload.ground_contact {
+                self.contact_s += task.control_period_s;
+            }
+            if self.contact_s >= task.config.place.release_after_contact_s {
+                env.release_grasps();
+                env.state_into(scene, state);
+                self.released = true;
+            }
+        }
+        let terminated = if state.grasp_broken {
+            Some(Termination::GraspBroken)
+        } else if state.payload.tilt_rad > task.config.safety.max_tilt_deg.to_radians() {
+            Some(Termination::Tilted)
+        } else {
+            None
+        };
+        StepOutcome {
+            terminated,
+            truncated: terminated.is_none() && self.steps >= task.max_steps,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_profile_starts_and_ends_at_rest_and_covers_the_distance() {
+        let p = TaskConfig::shipped().unwrap().profile();
+        assert!((p.duration_s() - 11.0).abs() < 1e-12, "{}", p.duration_s());
+        assert_eq!(p.speed_at(0.0), 0.0);
+        assert!((p.speed_at(0.5) - 0.1).abs() < 1e-12);
+        assert!((p.speed_at(5.0) - 0.2).abs() < 1e-12);
+        assert_eq!(p.speed_at(p.duration_s()), 0.0);
+        assert!((p.travelled_at(p.duration_s()) - 2.0).abs() < 1e-12);
+        let dt = 1e-4;
+        let numeric: f64 = (0..(7.3 / dt) as usize)
+            .map(|k| p.speed_at((k as f64 + 0.5) * dt) * dt)
+            .sum();
+        assert!((p.travelled_at(7.3) - numeric).abs() < 1e-6);
+        let triangle = VelocityProfile {
+            distance_m: 0.1,
+            speed_mps: 1.0,
+            accel_mps2: 1.0,
+        };
+        assert!((triangle.travelled_at(triangle.duration_s()) - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_task_settings_name_their_field() {
+        let path = config::repo_file("configs/tasks.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        for (from, to, field) in [
+            (
+                "max_tilt_deg = 45.0",
+                "max_tilt_deg = 0.0",
+                "safety.max_tilt_deg",
+            ),
+            (
+                "goal_height_m = [0.3, 0.75]",
+                "goal_height_m = [0.75, 0.3]",
+                "lift.goal_height_m",
+            ),
+            (
+                "distance_m = 2.0",
+                "distance_m = 9.0",
+                "transport.distance_m",
+            ),
+            (
+                "speed_mps = 0.2",
+                "speed_mps = 0.01",
+                "transport.duration_s",
+            ),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let err = config::parse::<TaskConfig>(&text.replace(from, to), &path).unwrap_err();
+            assert_eq!(err.field(), Some(field), "{err}");
+        }
+    }
+}
