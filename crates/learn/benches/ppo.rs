@@ -1,6 +1,7 @@
 //! PPO throughput at the paper's scale: a 4096-env × 24-step rollout with the [256, 128, 64]
 //! actor and critic, 80-dim observations and 18-dim actions, updated for 5 epochs × 4
 //! minibatches (configs/train/lift.toml), on 2 libtorch threads. Prints figures; asserts none.
+//! The critic reads the actor's observations (a symmetric critic, as the reference measured).
 //!
 //! Reference (this machine, 2 threads): rsl_rl 5.5.1 on torch 2.13 updates ~18,500 samples/s
 //! and needs ~17 ms per batched inference step over 4096 envs.
@@ -25,15 +26,8 @@ fn main() {
     config.policy.critic_hidden = vec![256, 128, 64];
     tch::set_num_threads(2);
     tch::manual_seed(0);
-    let policy = ActorCritic::new(OBS as usize, ACTIONS as usize, &config.policy);
-    let mut ppo = Ppo::new(
-        policy,
-        config.ppo.clone(),
-        STEPS,
-        ENVS as usize,
-        OBS as usize,
-        ACTIONS as usize,
-    );
+    let policy = ActorCritic::new(OBS as usize, OBS as usize, ACTIONS as usize, &config.policy);
+    let mut ppo = Ppo::new(policy, config.ppo.clone(), STEPS, ENVS as usize);
     let opts = (Kind::Float, Device::Cpu);
     let samples = ENVS as f64 * STEPS as f64;
     println!(
@@ -47,14 +41,16 @@ fn main() {
         for _ in 0..STEPS {
             // Inference alone: actor + critic + sampling + log-prob over 4096 envs.
             let t = Instant::now();
-            let sample = ppo.policy().act(&obs);
+            let sample = ppo.policy().act(&obs, &obs);
             infer_s += t.elapsed().as_secs_f64();
             drop(sample);
             // Then the rollout step proper, filling the storage for the update.
             let answer = ppo
-                .act_and_store(&obs, |_| {
+                .act_and_store(&obs, &obs, |_| {
+                    let next_obs = Tensor::randn([ENVS, OBS], opts);
                     Ok(EnvAnswer {
-                        next_obs: Tensor::randn([ENVS, OBS], opts),
+                        next_critic_obs: next_obs.shallow_clone(),
+                        next_obs,
                         rewards: Tensor::randn([ENVS], opts),
                         dones: Tensor::zeros([ENVS], opts),
                         time_outs: None,

@@ -1,6 +1,11 @@
 //! rsl_rl's actor–critic: two separate ELU MLPs (the actor gives the Gaussian mean, the critic
-//! the state value), a learned state-independent per-dimension std, and an optional shared
-//! empirical observation normalizer in front of both.
+//! the state value), a learned state-independent per-dimension std, and optional empirical
+//! observation normalizers in front of each.
+//!
+//! The critic is asymmetric (rsl_rl's `critic` observation group): it reads the env's critic
+//! observations, which may carry privileged state, while the actor reads only what the robot
+//! observes (see [`crate::env`]). Each network therefore has its own normalizer, as rsl_rl's
+//! `obs_normalizer` and `critic_obs_normalizer`.
 
 use tch::nn::{self, Module};
 use tch::{Device, Tensor};
@@ -56,33 +61,62 @@ pub struct ActorCritic {
     critic: Mlp,
     std_param: Tensor,
     std_type: StdType,
-    normalizer: Option<EmpiricalNormalizer>,
+    obs_dim: usize,
+    critic_obs_dim: usize,
+    obs_normalizer: Option<EmpiricalNormalizer>,
+    critic_obs_normalizer: Option<EmpiricalNormalizer>,
 }
 
 impl ActorCritic {
-    /// Fresh networks with PyTorch's default initialisation and std `config.init_std`.
-    pub fn new(obs_dim: usize, action_dim: usize, config: &PolicyConfig) -> Self {
+    /// Fresh networks with PyTorch's default initialisation (the actor's output layer scaled by
+    /// `config.actor_output_gain`) and std `config.init_std`: the actor on `obs_dim` inputs,
+    /// the critic on `critic_obs_dim`.
+    pub fn new(
+        obs_dim: usize,
+        critic_obs_dim: usize,
+        action_dim: usize,
+        config: &PolicyConfig,
+    ) -> Self {
         let vs = nn::VarStore::new(Device::Cpu);
         let hidden = |h: &[usize]| h.iter().map(|&n| n as i64).collect::<Vec<_>>();
-        let (obs, act) = (obs_dim as i64, action_dim as i64);
+        let (obs, critic_obs, act) = (obs_dim as i64, critic_obs_dim as i64, action_dim as i64);
         let root = vs.root();
         let actor = Mlp::new(&(&root / "actor"), obs, &hidden(&config.actor_hidden), act);
-        let critic = Mlp::new(&(&root / "critic"), obs, &hidden(&config.critic_hidden), 1);
+        if let Some(last) = actor.layers().last() {
+            // Scaling the output layer makes the initial mean action ≈ 0, i.e. the task's
+            // offset: for the phase tasks, the grasp pose rather than a random jerk off it.
+            tch::no_grad(|| {
+                let _ = last
+                    .ws
+                    .shallow_clone()
+                    .g_mul_scalar_(config.actor_output_gain);
+                if let Some(b) = &last.bs {
+                    let _ = b.shallow_clone().g_mul_scalar_(config.actor_output_gain);
+                }
+            });
+        }
+        let critic_hidden = hidden(&config.critic_hidden);
+        let critic = Mlp::new(&(&root / "critic"), critic_obs, &critic_hidden, 1);
         let init = match config.std_type {
             StdType::Scalar => config.init_std,
             StdType::Log => config.init_std.ln(),
         };
         let std_param = root.var(std_var_name(config.std_type), &[act], nn::Init::Const(init));
-        let normalizer = config
-            .obs_normalization
-            .then(|| EmpiricalNormalizer::new(obs));
+        let normalizer = |dim| {
+            config
+                .obs_normalization
+                .then(|| EmpiricalNormalizer::new(dim))
+        };
         ActorCritic {
             vs,
             actor,
             critic,
             std_param,
             std_type: config.std_type,
-            normalizer,
+            obs_dim,
+            critic_obs_dim,
+            obs_normalizer: normalizer(obs),
+            critic_obs_normalizer: normalizer(critic_obs),
         }
     }
 
@@ -94,14 +128,39 @@ impl ActorCritic {
         &self.actor
     }
 
-    pub fn normalizer(&self) -> Option<&EmpiricalNormalizer> {
-        self.normalizer.as_ref()
+    /// Width of the actor's observation.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
     }
 
-    /// Replaces the normalizer statistics (checkpoint resume); `None` if the config has no
-    /// normalizer.
-    pub fn normalizer_mut(&mut self) -> Option<&mut EmpiricalNormalizer> {
-        self.normalizer.as_mut()
+    /// Width of the critic's observation.
+    pub fn critic_obs_dim(&self) -> usize {
+        self.critic_obs_dim
+    }
+
+    pub fn action_dim(&self) -> usize {
+        self.std_param.size()[0] as usize
+    }
+
+    /// The actor's normalizer (exported with the policy).
+    pub fn obs_normalizer(&self) -> Option<&EmpiricalNormalizer> {
+        self.obs_normalizer.as_ref()
+    }
+
+    /// The critic's normalizer (training only).
+    pub fn critic_obs_normalizer(&self) -> Option<&EmpiricalNormalizer> {
+        self.critic_obs_normalizer.as_ref()
+    }
+
+    /// Replaces the actor normalizer's statistics (checkpoint resume); `None` if the config has
+    /// no normalization.
+    pub fn obs_normalizer_mut(&mut self) -> Option<&mut EmpiricalNormalizer> {
+        self.obs_normalizer.as_mut()
+    }
+
+    /// Replaces the critic normalizer's statistics (checkpoint resume).
+    pub fn critic_obs_normalizer_mut(&mut self) -> Option<&mut EmpiricalNormalizer> {
+        self.critic_obs_normalizer.as_mut()
     }
 
     /// `[A]` action std, always in `[STD_MIN, STD_MAX]`.
@@ -112,39 +171,48 @@ impl ActorCritic {
         }
     }
 
-    /// Learns normalizer statistics from raw observations `[B, O]` (no-op without one).
-    pub fn update_normalizer(&mut self, obs: &Tensor) {
-        if let Some(n) = self.normalizer.as_mut() {
+    /// Learns normalizer statistics from raw observations `[B, O]` and critic observations
+    /// `[B, C]` (no-op without normalization).
+    pub fn update_normalizers(&mut self, obs: &Tensor, critic_obs: &Tensor) {
+        if let Some(n) = self.obs_normalizer.as_mut() {
             n.update(obs);
         }
-    }
-
-    fn normalize(&self, obs: &Tensor) -> Tensor {
-        match &self.normalizer {
-            Some(n) => n.normalize(obs),
-            None => obs.shallow_clone(),
+        if let Some(n) = self.critic_obs_normalizer.as_mut() {
+            n.update(critic_obs);
         }
     }
 
-    /// `[B]` critic values of raw observations, without gradient.
-    pub fn value(&self, obs: &Tensor) -> Tensor {
-        tch::no_grad(|| self.critic.forward(&self.normalize(obs)).squeeze_dim(-1))
+    /// `[B, A]` Gaussian mean of raw observations `[B, O]`.
+    fn actor_mean(&self, obs: &Tensor) -> Tensor {
+        self.actor
+            .forward(&normalize(self.obs_normalizer.as_ref(), obs))
+    }
+
+    /// `[B]` values of raw critic observations `[B, C]`.
+    fn critic_value(&self, critic_obs: &Tensor) -> Tensor {
+        let x = normalize(self.critic_obs_normalizer.as_ref(), critic_obs);
+        self.critic.forward(&x).squeeze_dim(-1)
+    }
+
+    /// `[B]` critic values of raw critic observations `[B, C]`, without gradient.
+    pub fn value(&self, critic_obs: &Tensor) -> Tensor {
+        tch::no_grad(|| self.critic_value(critic_obs))
     }
 
     /// `[B, A]` deterministic action (the Gaussian mean): what evaluation and export run.
     pub fn act_deterministic(&self, obs: &Tensor) -> Tensor {
-        tch::no_grad(|| self.actor.forward(&self.normalize(obs)))
+        tch::no_grad(|| self.actor_mean(obs))
     }
 
-    /// Samples actions for a rollout step from raw observations `[B, O]`.
-    pub fn act(&self, obs: &Tensor) -> Sample {
+    /// Samples actions for a rollout step from raw observations `[B, O]`, valued on the raw
+    /// critic observations `[B, C]` of the same rows.
+    pub fn act(&self, obs: &Tensor, critic_obs: &Tensor) -> Sample {
         tch::no_grad(|| {
-            let x = self.normalize(obs);
-            let mean = self.actor.forward(&x);
+            let mean = self.actor_mean(obs);
             let std = self.std().expand_as(&mean);
             let actions = &mean + &std * mean.randn_like();
             let log_prob = gaussian::log_prob(&actions, &mean, &std);
-            let values = self.critic.forward(&x).squeeze_dim(-1);
+            let values = self.critic_value(critic_obs);
             Sample {
                 actions,
                 log_prob,
@@ -156,17 +224,23 @@ impl ActorCritic {
     }
 
     /// Log-probabilities, entropy and values of a minibatch, with gradient.
-    pub fn evaluate(&self, obs: &Tensor, actions: &Tensor) -> Evaluation {
-        let x = self.normalize(obs);
-        let mean = self.actor.forward(&x);
+    pub fn evaluate(&self, obs: &Tensor, critic_obs: &Tensor, actions: &Tensor) -> Evaluation {
+        let mean = self.actor_mean(obs);
         let std = self.std();
         Evaluation {
             log_prob: gaussian::log_prob(actions, &mean, &std),
             entropy: gaussian::entropy(&std),
-            values: self.critic.forward(&x).squeeze_dim(-1),
+            values: self.critic_value(critic_obs),
             mean,
             std,
         }
+    }
+}
+
+fn normalize(normalizer: Option<&EmpiricalNormalizer>, x: &Tensor) -> Tensor {
+    match normalizer {
+        Some(n) => n.normalize(x),
+        None => x.shallow_clone(),
     }
 }
 
@@ -180,6 +254,7 @@ mod tests {
             actor_hidden: vec![8],
             critic_hidden: vec![8, 8],
             init_std: 1.0,
+            actor_output_gain: 1.0,
             std_type,
             obs_normalization: true,
         }
@@ -188,7 +263,7 @@ mod tests {
     #[test]
     fn std_starts_at_init_and_stays_positive() {
         for std_type in [StdType::Scalar, StdType::Log] {
-            let ac = ActorCritic::new(3, 2, &config(std_type));
+            let ac = ActorCritic::new(3, 3, 2, &config(std_type));
             let std: Vec<f32> = Vec::try_from(&ac.std()).unwrap();
             assert_eq!(std, vec![1.0, 1.0]);
             // Drive the raw parameter far negative, as a bad update could.
@@ -209,15 +284,58 @@ mod tests {
     #[test]
     fn evaluate_matches_act_and_separates_actor_from_critic() {
         tch::manual_seed(0);
-        let ac = ActorCritic::new(3, 2, &config(StdType::Scalar));
+        let ac = ActorCritic::new(3, 3, 2, &config(StdType::Scalar));
         let names: Vec<String> = ac.var_store().variables().into_keys().collect();
         assert!(names.contains(&"actor.1.weight".to_string()));
         assert!(names.contains(&"critic.2.bias".to_string()));
         let obs = Tensor::randn([5, 3], (Kind::Float, Device::Cpu));
-        let s = ac.act(&obs);
-        let e = ac.evaluate(&obs, &s.actions);
+        let s = ac.act(&obs, &obs);
+        let e = ac.evaluate(&obs, &obs, &s.actions);
         assert!(f64::try_from((e.log_prob - s.log_prob).abs().max()).unwrap() < 1e-6);
         assert!(f64::try_from((e.values - s.values).abs().max()).unwrap() < 1e-6);
         assert_eq!(s.actions.size(), vec![5, 2]);
+    }
+
+    #[test]
+    fn critic_reads_the_wider_critic_observations() {
+        tch::manual_seed(1);
+        let opts = (Kind::Float, Device::Cpu);
+        let mut ac = ActorCritic::new(3, 4, 2, &config(StdType::Scalar));
+        let vars = ac.var_store().variables();
+        assert_eq!(vars["actor.0.weight"].size(), [8, 3]);
+        assert_eq!(vars["critic.0.weight"].size(), [8, 4]);
+        assert_eq!(
+            (ac.obs_dim(), ac.critic_obs_dim(), ac.action_dim()),
+            (3, 4, 2)
+        );
+
+        let obs = Tensor::randn([6, 3], opts);
+        let critic_obs = Tensor::randn([6, 4], opts) * 2.0 + 1.0;
+        ac.update_normalizers(&obs, &critic_obs);
+        let norm = |n: Option<&EmpiricalNormalizer>| n.expect("normalized").mean().copy();
+        let (actor_mean, critic_mean) =
+            (norm(ac.obs_normalizer()), norm(ac.critic_obs_normalizer()));
+        let gap = |a: &Tensor, b: &Tensor| f64::try_from((a - b).abs().max()).unwrap();
+        assert!(gap(&actor_mean, &obs.mean_dim(0, false, Kind::Float)) < 1e-6);
+        assert!(gap(&critic_mean, &critic_obs.mean_dim(0, false, Kind::Float)) < 1e-6);
+
+        // The privileged column moves the value but not the action.
+        let shifted = critic_obs.copy();
+        let mut privileged = shifted.narrow(1, 3, 1);
+        privileged += 5.0;
+        assert_eq!(ac.value(&critic_obs).size(), [6]);
+        assert!(gap(&ac.value(&critic_obs), &ac.value(&shifted)) > 1e-4);
+        tch::manual_seed(2);
+        let a = ac.act(&obs, &critic_obs);
+        tch::manual_seed(2);
+        let b = ac.act(&obs, &shifted);
+        assert_eq!(gap(&a.actions, &b.actions), 0.0);
+        assert!(gap(&a.values, &b.values) > 1e-4);
+        let e = ac.evaluate(&obs, &shifted, &b.actions);
+        assert!(gap(&e.values, &b.values) < 1e-6);
+
+        // The critic cannot be fed the actor's narrower observation.
+        let narrow = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| ac.value(&obs)));
+        assert!(narrow.is_err(), "a [B, obs_dim] input reached the critic");
     }
 }

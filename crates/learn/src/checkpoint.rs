@@ -1,11 +1,17 @@
 //! Training checkpoints: everything needed to continue a run — actor, critic and std
-//! parameters, Adam's moments, step count and learning rate, the observation normalizer, and
-//! the run's progress — in one safetensors file, written atomically.
+//! parameters, Adam's moments, step count and learning rate, the actor's and the critic's
+//! observation normalizers, and the run's progress — in one safetensors file, written
+//! atomically.
 //!
 //! Tensors: `model/<var>` (variable-store names such as `actor.0.weight`), `adam/exp_avg/<var>`,
-//! `adam/exp_avg_sq/<var>`, and with a normalizer `obs_norm/mean`, `obs_norm/var`. Metadata:
-//! `format`, `format_version`, `task`, `iteration`, `env_steps`, `learning_rate`,
-//! `adam_step` and `obs_norm_count`.
+//! `adam/exp_avg_sq/<var>`, and with normalization `obs_norm/mean`, `obs_norm/var` (actor) and
+//! `critic_obs_norm/mean`, `critic_obs_norm/var` (critic). Metadata: `format`,
+//! `format_version`, `task`, `iteration`, `env_steps`, `learning_rate`, `adam_step`,
+//! `obs_norm_count` and `critic_obs_norm_count`.
+//!
+//! Version 2 added the critic's normalizer (the critic reads its own observations, see
+//! [`crate::env`]); version 1 files are refused rather than resumed with a critic normalizer
+//! reset to identity.
 //!
 //! Not stored: libtorch's and the envs' random streams, and the episodes in progress. A resumed
 //! run reseeds both from the config seed and the iteration and starts fresh episodes (as rsl_rl
@@ -25,7 +31,10 @@ use crate::runner::Progress;
 use crate::LearnError;
 
 const FORMAT: &str = "moonhaul-checkpoint";
-const FORMAT_VERSION: &str = "1";
+const FORMAT_VERSION: &str = "2";
+/// Prefixes of the actor's and the critic's normalizer entries.
+const OBS_NORM: &str = "obs_norm";
+const CRITIC_OBS_NORM: &str = "critic_obs_norm";
 
 /// Writes `bytes` to `path` whole or not at all ([`moonhaul_core::atomic_file`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), LearnError> {
@@ -60,10 +69,17 @@ pub fn save(path: &Path, ppo: &Ppo, progress: Progress, task: Task) -> Result<()
         ("learning_rate".into(), ppo.learning_rate().to_string()),
         ("adam_step".into(), ppo.optimizer().step_count().to_string()),
     ]);
-    if let Some(norm) = ppo.policy().normalizer() {
-        entries.push(("obs_norm/mean".into(), f32_bytes(norm.mean())?));
-        entries.push(("obs_norm/var".into(), f32_bytes(norm.var())?));
-        metadata.insert("obs_norm_count".into(), norm.count().to_string());
+    let policy = ppo.policy();
+    let normalizers = [
+        (OBS_NORM, policy.obs_normalizer()),
+        (CRITIC_OBS_NORM, policy.critic_obs_normalizer()),
+    ];
+    for (prefix, norm) in normalizers {
+        if let Some(norm) = norm {
+            entries.push((format!("{prefix}/mean"), f32_bytes(norm.mean())?));
+            entries.push((format!("{prefix}/var"), f32_bytes(norm.var())?));
+            metadata.insert(format!("{prefix}_count"), norm.count().to_string());
+        }
     }
     let views = entries
         .iter()
@@ -104,8 +120,15 @@ pub fn load(path: &Path, ppo: &mut Ppo, task: Task) -> Result<Progress, LearnErr
             .parse()
             .map_err(|_| format!("metadata `{key}` = {value:?} is not a number"))
     }
-    if get("format")? != FORMAT || get("format_version")? != FORMAT_VERSION {
-        return Err(bad(format!("not a {FORMAT} version {FORMAT_VERSION} file")));
+    if get("format")? != FORMAT {
+        return Err(bad(format!("not a {FORMAT} file")));
+    }
+    let version = get("format_version")?;
+    if version != FORMAT_VERSION {
+        return Err(bad(format!(
+            "format_version {version:?}, this build reads only version {FORMAT_VERSION} \
+             (version 2 added the critic's observation normalizer)"
+        )));
     }
     if get("task")? != task.name() {
         return Err(bad(format!(
@@ -172,28 +195,36 @@ pub fn load(path: &Path, ppo: &mut Ppo, task: Task) -> Result<Progress, LearnErr
         let v = read(&format!("adam/exp_avg_sq/{name}"), &var.size())?;
         moments.insert(name.clone(), (m, v));
     }
-    let normalizer = match (ppo.policy().normalizer(), meta.get("obs_norm_count")) {
-        (Some(norm), Some(count)) => {
-            let dim = norm.mean().size();
-            let count = parse::<i64>("obs_norm_count", count).map_err(bad)?;
-            Some(EmpiricalNormalizer::from_parts(
-                read("obs_norm/mean", &dim)?,
-                read("obs_norm/var", &dim)?,
-                count,
-            ))
-        }
-        (None, None) => None,
-        (has, _) => {
-            let side = if has.is_some() {
-                "config uses"
-            } else {
-                "checkpoint has"
-            };
-            return Err(bad(format!(
-                "observation normalizer mismatch: only the {side} one"
-            )));
+    let read_normalizer = |prefix: &str,
+                           current: Option<&EmpiricalNormalizer>|
+     -> Result<Option<EmpiricalNormalizer>, LearnError> {
+        let count_key = format!("{prefix}_count");
+        match (current, meta.get(&count_key)) {
+            (Some(norm), Some(count)) => {
+                let dim = norm.mean().size();
+                let count = parse::<i64>(&count_key, count).map_err(bad)?;
+                Ok(Some(EmpiricalNormalizer::from_parts(
+                    read(&format!("{prefix}/mean"), &dim)?,
+                    read(&format!("{prefix}/var"), &dim)?,
+                    count,
+                )))
+            }
+            (None, None) => Ok(None),
+            (has, _) => {
+                let side = if has.is_some() {
+                    "config uses"
+                } else {
+                    "checkpoint has"
+                };
+                Err(bad(format!(
+                    "`{prefix}` normalizer mismatch: only the {side} one"
+                )))
+            }
         }
     };
+    let policy = ppo.policy();
+    let obs_norm = read_normalizer(OBS_NORM, policy.obs_normalizer())?;
+    let critic_obs_norm = read_normalizer(CRITIC_OBS_NORM, policy.critic_obs_normalizer())?;
 
     // Everything validated: now mutate.
     tch::no_grad(|| {
@@ -205,8 +236,108 @@ pub fn load(path: &Path, ppo: &mut Ppo, task: Task) -> Result<Progress, LearnErr
         .restore(adam_step, |name| moments.remove(name))
         .map_err(bad)?;
     ppo.optimizer_mut().set_lr(lr);
-    if let (Some(n), Some(saved)) = (ppo.policy_mut().normalizer_mut(), normalizer) {
+    let policy = ppo.policy_mut();
+    if let (Some(n), Some(saved)) = (policy.obs_normalizer_mut(), obs_norm) {
+        *n = saved;
+    }
+    if let (Some(n), Some(saved)) = (policy.critic_obs_normalizer_mut(), critic_obs_norm) {
         *n = saved;
     }
     Ok(progress)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::actor_critic::ActorCritic;
+    use crate::config::TrainConfig;
+    use tch::{Device, Kind};
+
+    /// A learner whose critic reads one more input than its actor, normalizers fed distinct
+    /// data.
+    fn ppo() -> Ppo {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/train/pendulum.toml"
+        );
+        let config = TrainConfig::load(path).unwrap();
+        assert!(config.policy.obs_normalization);
+        let mut ppo = Ppo::new(ActorCritic::new(3, 4, 1, &config.policy), config.ppo, 2, 2);
+        let opts = (Kind::Float, Device::Cpu);
+        ppo.policy_mut().update_normalizers(
+            &Tensor::randn([5, 3], opts),
+            &(Tensor::randn([7, 4], opts) * 3.0 - 2.0),
+        );
+        ppo
+    }
+
+    /// Rewrites the checkpoint at `path` keeping only the entries `keep` accepts, with
+    /// `format_version` set to `version`.
+    fn rewrite(path: &Path, keep: impl Fn(&str) -> bool, version: &str) {
+        let bytes = std::fs::read(path).unwrap();
+        let file = SafeTensors::deserialize(&bytes).unwrap();
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let mut meta = header.metadata().clone().unwrap();
+        meta.retain(|k, _| keep(k));
+        meta.insert("format_version".into(), version.into());
+        let views: Vec<_> = file
+            .tensors()
+            .into_iter()
+            .filter(|(name, _)| keep(name))
+            .collect();
+        std::fs::write(path, safetensors::serialize(views, Some(meta)).unwrap()).unwrap();
+    }
+
+    #[test]
+    fn both_normalizers_round_trip() {
+        tch::manual_seed(5);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ckpt.safetensors");
+        let saved = ppo();
+        let progress = Progress {
+            iteration: 3,
+            env_steps: 12,
+        };
+        save(&path, &saved, progress, Task::Pendulum).unwrap();
+        let mut loaded = ppo();
+        assert_eq!(load(&path, &mut loaded, Task::Pendulum).unwrap(), progress);
+        let pairs = [
+            (
+                saved.policy().obs_normalizer(),
+                loaded.policy().obs_normalizer(),
+            ),
+            (
+                saved.policy().critic_obs_normalizer(),
+                loaded.policy().critic_obs_normalizer(),
+            ),
+        ];
+        for (a, b) in pairs {
+            let (a, b) = (a.unwrap(), b.unwrap());
+            assert_eq!(a.count(), b.count());
+            assert!(a.mean().equal(b.mean()) && a.var().equal(b.var()));
+        }
+        let critic = loaded.policy().critic_obs_normalizer().unwrap();
+        assert_eq!((critic.mean().size(), critic.count()), (vec![4], 7));
+    }
+
+    #[test]
+    fn checkpoints_without_the_critic_normalizer_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ckpt.safetensors");
+        let old_layout = |name: &str| !name.starts_with(CRITIC_OBS_NORM);
+
+        save(&path, &ppo(), Progress::default(), Task::Pendulum).unwrap();
+        rewrite(&path, old_layout, "1");
+        let err = load(&path, &mut ppo(), Task::Pendulum).unwrap_err();
+        assert!(err.to_string().contains("format_version \"1\""), "{err}");
+
+        // Even labelled as the current version, the missing normalizer is named.
+        save(&path, &ppo(), Progress::default(), Task::Pendulum).unwrap();
+        rewrite(&path, old_layout, FORMAT_VERSION);
+        let err = load(&path, &mut ppo(), Task::Pendulum).unwrap_err();
+        assert!(
+            err.to_string().contains("`critic_obs_norm` normalizer"),
+            "{err}"
+        );
+    }
 }

@@ -3,7 +3,7 @@
 //! required, so a typo or a forgotten key is an error rather than a silent default, and every
 //! number bounded so a run cannot exhaust memory before its first iteration.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use moonhaul_core::config::{
     self, count, in_range, positive, section, ConfigError, FieldError, Validate,
@@ -23,6 +23,18 @@ pub struct TrainConfig {
     /// Table II's tolerances and weights: required for the phase tasks, absent for benchmark
     /// tasks (which bring their own reward).
     pub reward: Option<RewardConfig>,
+    /// The simulated world of the phase tasks; absent for benchmark tasks.
+    pub world: Option<WorldConfig>,
+}
+
+/// Which simulator and task settings a phase task trains on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldConfig {
+    /// `configs/sim.toml`, relative to this config file.
+    pub sim: PathBuf,
+    /// `configs/tasks.toml`, relative to this config file.
+    pub tasks: PathBuf,
 }
 
 /// What to train and how the run is driven.
@@ -85,6 +97,9 @@ pub struct PolicyConfig {
     pub critic_hidden: Vec<usize>,
     /// Initial Gaussian action std, every dimension.
     pub init_std: f64,
+    /// Multiplies the actor's initial output-layer weights and biases: 1 is PyTorch's (and
+    /// rsl_rl's) default; a small gain starts the mean action at ≈ 0, the task's offset.
+    pub actor_output_gain: f64,
     pub std_type: StdType,
     /// rsl_rl's empirical observation normalization (exported with the policy).
     pub obs_normalization: bool,
@@ -115,7 +130,8 @@ pub struct PpoConfig {
     pub max_lr: f64,
     /// Multiplies the rewards PPO learns from (not the logged returns). Not an rsl_rl
     /// setting: it stands for the reward weights a task would otherwise scale, so the critic's
-    /// targets are of order one; 1.0 for the phase tasks, whose rewards already are.
+    /// targets are of order one (Table II's penalties reach −300 per step; the phase configs
+    /// use 0.001). The policy gradient is unaffected: advantages are normalized per batch.
     pub reward_scale: f64,
     pub gamma: f64,
     pub lambda: f64,
@@ -169,6 +185,18 @@ pub const MAX_BATCH_SAMPLES: u64 = 1 << 22;
 const MAX_NAME_BYTES: usize = 64;
 
 impl Validate for TrainConfig {
+    fn resolve(&mut self, config_path: &Path) -> Result<(), ConfigError> {
+        if let Some(world) = &mut self.world {
+            // Absolute where they exist, so the resolved config saved in a run folder still
+            // names them; a missing file is reported when the world is built.
+            for path in [&mut world.sim, &mut world.tasks] {
+                let resolved = config::resolve(config_path, path);
+                *path = std::fs::canonicalize(&resolved).unwrap_or(resolved);
+            }
+        }
+        Ok(())
+    }
+
     fn validate(&self) -> Result<(), FieldError> {
         let (run, env, policy, ppo) = (&self.run, &self.env, &self.policy, &self.ppo);
         section("run", || {
@@ -225,7 +253,8 @@ impl Validate for TrainConfig {
                     count(&format!("{field}[{i}]"), width as u64, 1, 4096)?;
                 }
             }
-            positive("init_std", policy.init_std, 100.0)
+            positive("init_std", policy.init_std, 100.0)?;
+            positive("actor_output_gain", policy.actor_output_gain, 1.0)
         })?;
         match (self.run.task, &self.reward) {
             (Task::Pendulum, Some(_)) => {
@@ -245,6 +274,24 @@ impl Validate for TrainConfig {
                 ))
             }
             (_, Some(reward)) => section("reward", || reward.validate())?,
+        }
+        match (self.run.task, &self.world) {
+            (Task::Pendulum, Some(_)) => {
+                return Err(FieldError::new(
+                    "world",
+                    "the pendulum task has no simulated world; remove [world]",
+                ))
+            }
+            (Task::Pendulum, None) | (_, Some(_)) => {}
+            (task, None) => {
+                return Err(FieldError::new(
+                    "world",
+                    format!(
+                        "the {} task needs a [world] section naming sim.toml and tasks.toml",
+                        task.name()
+                    ),
+                ))
+            }
         }
         section("ppo", || {
             positive("learning_rate", ppo.learning_rate, 1.0)?;
@@ -298,11 +345,13 @@ mod tests {
     #[test]
     fn phase_configs_hold_table_one() {
         // (lr, gamma, entropy, envs, hidden) per phase; lambda, clip, epochs, minibatches shared.
+        // Env counts are this machine's compute choice (worlds of two units), in the paper's
+        // proportions: Table I has 2048 / 4096 / 2048.
         type Row = (&'static str, f64, f64, f64, usize, [usize; 3]);
         let table: [Row; 3] = [
-            ("lift", 1e-4, 0.98, 0.006, 2048, [256, 128, 64]),
-            ("transport", 1e-3, 0.99, 0.005, 4096, [128, 128, 128]),
-            ("place", 1e-4, 0.98, 0.006, 2048, [256, 128, 64]),
+            ("lift", 1e-4, 0.98, 0.006, 256, [256, 128, 64]),
+            ("transport", 1e-3, 0.99, 0.005, 512, [128, 128, 128]),
+            ("place", 1e-4, 0.98, 0.006, 256, [256, 128, 64]),
         ];
         for (name, lr, gamma, entropy, envs, hidden) in table {
             let c = repo_config(name);
@@ -325,12 +374,15 @@ mod tests {
             );
             assert_eq!(
                 (p.max_grad_norm, p.clipped_value_loss, p.reward_scale),
-                (1.0, true, 1.0)
+                (1.0, true, 0.001)
             );
             assert_eq!(c.env.num_envs, envs, "{name}");
             assert_eq!(c.policy.actor_hidden, hidden, "{name}");
             assert_eq!(c.policy.critic_hidden, hidden, "{name}");
-            assert_eq!(c.policy.init_std, 1.0);
+            assert_eq!(
+                (c.policy.init_std, c.policy.actor_output_gain),
+                (0.05, 0.01)
+            );
         }
         assert_eq!(repo_config("pendulum").run.task, Task::Pendulum);
     }

@@ -3,16 +3,25 @@
 //!
 //! All buffers are flat, row-major `f64` slices (`env` major): `obs[i * obs_dim + k]` is
 //! observation entry `k` of env `i`. The trainer converts to f32 tensors; env math stays f64.
+//! A row is one agent: a task may drive several agents per simulated world with one shared
+//! policy, so [`VecEnv::num_envs`] counts rows, not worlds.
+//!
+//! # Asymmetric actor–critic
+//!
+//! Each row has two observations (rsl_rl's `policy` and `critic` observation groups): `obs`,
+//! what the actor and the exported policy see, and `critic_obs`, what the training-only critic
+//! sees. The critic may read privileged simulator state the robot cannot measure, since it
+//! never runs onboard; an env without such state reports `critic_obs = obs`.
 //!
 //! # Auto-reset
 //!
 //! [`VecEnv::step`] resets an env **in the same call** in which its episode ends (the
-//! IsaacLab / rsl_rl convention): for such an env, `obs` already holds the first observation
-//! of the next episode, `terminated` or `truncated` says why the old one ended, and
-//! `final_obs` holds the observation the old episode ended in. The trainer needs the latter
-//! to bootstrap time-outs with `γ V(s_final)`: a truncated episode was cut by the clock, not
-//! finished, so its value did not drop to zero. Rows of `final_obs` for envs that did not end
-//! are unspecified.
+//! IsaacLab / rsl_rl convention): for such an env, `obs` and `critic_obs` already hold the
+//! first observations of the next episode, `terminated` or `truncated` says why the old one
+//! ended, and `final_obs` / `final_critic_obs` hold the observations the old episode ended in.
+//! The trainer needs `final_critic_obs` to bootstrap time-outs with `γ V(s_final)`: a truncated
+//! episode was cut by the clock, not finished, so its value did not drop to zero. Rows of
+//! `final_obs` and `final_critic_obs` for envs that did not end are unspecified.
 
 use crate::LearnError;
 
@@ -22,6 +31,8 @@ pub struct VecStep {
     /// `[num_envs * obs_dim]`: observation after the step (after auto-reset where an episode
     /// ended).
     pub obs: Vec<f64>,
+    /// `[num_envs * critic_obs_dim]`: critic observation after the step (after auto-reset).
+    pub critic_obs: Vec<f64>,
     /// `[num_envs]`: reward of the transition.
     pub rewards: Vec<f64>,
     /// `[num_envs]`: the episode reached a terminal state (no value beyond it).
@@ -30,21 +41,26 @@ pub struct VecStep {
     pub truncated: Vec<bool>,
     /// `[num_envs * obs_dim]`: last observation of each episode that ended this step.
     pub final_obs: Vec<f64>,
+    /// `[num_envs * critic_obs_dim]`: last critic observation of each episode that ended this
+    /// step.
+    pub final_critic_obs: Vec<f64>,
 }
 
 impl VecStep {
-    pub fn new(num_envs: usize, obs_dim: usize) -> Self {
+    pub fn new(num_envs: usize, obs_dim: usize, critic_obs_dim: usize) -> Self {
         VecStep {
             obs: vec![0.0; num_envs * obs_dim],
+            critic_obs: vec![0.0; num_envs * critic_obs_dim],
             rewards: vec![0.0; num_envs],
             terminated: vec![false; num_envs],
             truncated: vec![false; num_envs],
             final_obs: vec![0.0; num_envs * obs_dim],
+            final_critic_obs: vec![0.0; num_envs * critic_obs_dim],
         }
     }
 }
 
-/// A fixed-size batch of independent environments of one task.
+/// A fixed-size batch of agent rows of one task (see the [module docs](self)).
 ///
 /// Actions are the policy's raw outputs; an env maps them to its physical command as
 /// `offset + scale ⊙ action` (then applies its own limits). [`VecEnv::action_scale`] and
@@ -53,6 +69,10 @@ pub trait VecEnv {
     fn num_envs(&self) -> usize;
     fn obs_dim(&self) -> usize;
     fn action_dim(&self) -> usize;
+
+    /// Width of the critic's (privileged) observation; equal to obs_dim for envs without
+    /// privileged state. No default: every env states what its critic sees.
+    fn critic_obs_dim(&self) -> usize;
 
     /// `[action_dim]` scale of the action map (default: identity).
     fn action_scale(&self) -> Vec<f64> {
@@ -65,12 +85,24 @@ pub trait VecEnv {
     }
 
     /// Reseeds every env's randomness from `seed` (same seed, same initial states) and starts
-    /// new episodes; writes the first observations into `obs` (`[num_envs * obs_dim]`).
-    fn reset(&mut self, seed: u64, obs: &mut [f64]) -> Result<(), LearnError>;
+    /// new episodes; writes the first observations into `obs` (`[num_envs * obs_dim]`) and
+    /// `critic_obs` (`[num_envs * critic_obs_dim]`).
+    fn reset(
+        &mut self,
+        seed: u64,
+        obs: &mut [f64],
+        critic_obs: &mut [f64],
+    ) -> Result<(), LearnError>;
 
     /// Starts a new episode in env `index` alone, drawing from its current random stream;
-    /// writes its first observation into `obs` (`[obs_dim]`).
-    fn reset_env(&mut self, index: usize, obs: &mut [f64]) -> Result<(), LearnError>;
+    /// writes its first observations into `obs` (`[obs_dim]`) and `critic_obs`
+    /// (`[critic_obs_dim]`).
+    fn reset_env(
+        &mut self,
+        index: usize,
+        obs: &mut [f64],
+        critic_obs: &mut [f64],
+    ) -> Result<(), LearnError>;
 
     /// Advances every env by one control step with `actions` (`[num_envs * action_dim]`),
     /// auto-resetting finished episodes as described in the [module docs](self).

@@ -21,9 +21,9 @@ pub enum LearnError {
     /// A config value parses but is out of range.
     #[error("config field `{field}` is invalid: {reason}")]
     InvalidConfig { field: String, reason: String },
-    /// The config names a task this build cannot construct yet.
-    #[error("task `{task}` is not available: {reason}")]
-    TaskUnavailable { task: String, reason: String },
+    /// The simulated world cannot be built or stepped.
+    #[error(transparent)]
+    Sim(#[from] moonhaul_sim::SimError),
     /// A batch passed to an environment has the wrong length.
     #[error("{what} has {found} values, expected {expected}")]
     Shape {

@@ -1,6 +1,7 @@
 //! Export of a trained actor to the onboard policy file of [`moonhaul_core::policy`]: the
-//! actor's layers (the Gaussian mean; the std is training-only), the observation normalizer
-//! with rsl_rl's ε folded into the std, and the env's action map.
+//! actor's layers (the Gaussian mean; the std is training-only), the actor's observation
+//! normalizer with rsl_rl's ε folded into the std, and the env's action map. The critic and its
+//! normalizer are training-only: the robot never sees the critic's privileged observations.
 
 use std::collections::BTreeMap;
 
@@ -47,7 +48,7 @@ pub fn export_policy(
         })
         .collect::<Result<Vec<_>, LearnError>>()?;
     let obs_dim = layers.first().map_or(0, |l| l.weight.shape()[1]);
-    let obs_norm = match policy.normalizer() {
+    let obs_norm = match policy.obs_normalizer() {
         Some(n) => ObsNormalizer {
             mean: to_policy_tensor(n.mean())?,
             std: to_policy_tensor(&n.export_std())?,

@@ -8,7 +8,8 @@
 //! The split follows rsl_rl: [`env`] (what a batched environment offers), [`storage`] (rollout
 //! buffer and GAE), [`ppo`] (the update), [`runner`] (rollout/update loop and evaluation),
 //! [`trainer`] (the run folder: config, metrics, plots, checkpoints, export). [`reward`] holds
-//! the paper's phase rewards r_L, r_T, r_P with Table II's tolerances and weights.
+//! the paper's phase rewards r_L, r_T, r_P with Table II's tolerances and weights, and
+//! [`phase_env`] the lift, transport and place tasks built on them.
 
 pub mod actor_critic;
 pub mod adam;
@@ -22,8 +23,10 @@ pub mod metrics;
 pub mod mlp;
 pub mod normalizer;
 pub mod pendulum;
+pub mod phase_env;
 pub mod plot;
 pub mod ppo;
+pub mod provenance;
 pub mod reward;
 pub mod runner;
 pub mod storage;

@@ -122,17 +122,38 @@ impl VecEnv for PendulumVecEnv {
         ACTION_DIM
     }
 
-    fn reset(&mut self, seed: u64, obs: &mut [f64]) -> Result<(), LearnError> {
-        check_len("observation batch", obs, self.envs.len() * OBS_DIM)?;
+    /// The pendulum has no privileged state: the critic sees the observation.
+    fn critic_obs_dim(&self) -> usize {
+        OBS_DIM
+    }
+
+    fn reset(
+        &mut self,
+        seed: u64,
+        obs: &mut [f64],
+        critic_obs: &mut [f64],
+    ) -> Result<(), LearnError> {
+        let n = self.envs.len();
+        check_len("observation batch", obs, n * OBS_DIM)?;
+        check_len("critic observation batch", critic_obs, n * OBS_DIM)?;
         self.rng = ChaCha8Rng::seed_from_u64(seed);
-        for (i, row) in obs.chunks_exact_mut(OBS_DIM).enumerate() {
-            self.reset_env(i, row)?;
+        let rows = obs
+            .chunks_exact_mut(OBS_DIM)
+            .zip(critic_obs.chunks_exact_mut(OBS_DIM));
+        for (i, (row, critic_row)) in rows.enumerate() {
+            self.reset_env(i, row, critic_row)?;
         }
         Ok(())
     }
 
-    fn reset_env(&mut self, index: usize, obs: &mut [f64]) -> Result<(), LearnError> {
+    fn reset_env(
+        &mut self,
+        index: usize,
+        obs: &mut [f64],
+        critic_obs: &mut [f64],
+    ) -> Result<(), LearnError> {
         check_len("observation", obs, OBS_DIM)?;
+        check_len("critic observation", critic_obs, OBS_DIM)?;
         let n = self.envs.len();
         let env = self.envs.get_mut(index).ok_or(LearnError::Shape {
             what: "env index",
@@ -142,6 +163,7 @@ impl VecEnv for PendulumVecEnv {
         *env = Pendulum::sample(&mut self.rng);
         self.steps[index] = 0;
         obs.copy_from_slice(&env.observation());
+        critic_obs.copy_from_slice(obs);
         Ok(())
     }
 
@@ -149,7 +171,10 @@ impl VecEnv for PendulumVecEnv {
         let n = self.envs.len();
         check_len("action batch", actions, n * ACTION_DIM)?;
         check_len("observation buffer", &out.obs, n * OBS_DIM)?;
+        check_len("critic observation buffer", &out.critic_obs, n * OBS_DIM)?;
         check_len("final observation buffer", &out.final_obs, n * OBS_DIM)?;
+        let final_critic = &out.final_critic_obs;
+        check_len("final critic observation buffer", final_critic, n * OBS_DIM)?;
         if actions.iter().any(|a| !a.is_finite()) {
             return Err(LearnError::NonFinite {
                 what: "pendulum action".into(),
@@ -164,7 +189,10 @@ impl VecEnv for PendulumVecEnv {
             out.obs[row.clone()].copy_from_slice(&self.envs[i].observation());
             if out.truncated[i] {
                 out.final_obs[row.clone()].copy_from_slice(&out.obs[row.clone()]);
-                self.reset_env(i, &mut out.obs[row])?;
+                out.final_critic_obs[row.clone()].copy_from_slice(&out.obs[row.clone()]);
+                self.reset_env(i, &mut out.obs[row.clone()], &mut out.critic_obs[row])?;
+            } else {
+                out.critic_obs[row.clone()].copy_from_slice(&out.obs[row]);
             }
         }
         Ok(())
@@ -187,7 +215,8 @@ mod tests {
     fn initial_states_are_uniform_in_gymnasium_bounds() {
         let mut env = PendulumVecEnv::new(4000);
         let mut obs = vec![0.0; 4000 * OBS_DIM];
-        env.reset(7, &mut obs).unwrap();
+        let mut critic_obs = obs.clone();
+        env.reset(7, &mut obs, &mut critic_obs).unwrap();
         let (th, thd): (Vec<f64>, Vec<f64>) = env
             .envs
             .iter()
@@ -205,26 +234,38 @@ mod tests {
     fn truncates_at_200_steps_and_auto_resets() {
         let mut env = PendulumVecEnv::new(2);
         let mut obs = vec![0.0; 2 * OBS_DIM];
-        env.reset(1, &mut obs).unwrap();
-        let mut out = VecStep::new(2, OBS_DIM);
+        let mut critic_obs = vec![1.0; 2 * OBS_DIM];
+        env.reset(1, &mut obs, &mut critic_obs).unwrap();
+        assert_eq!(critic_obs, obs, "no privileged state: the critic sees obs");
+        let mut out = VecStep::new(2, OBS_DIM, OBS_DIM);
         for step in 1..=MAX_EPISODE_STEPS {
             env.step(&[0.5, -0.5], &mut out).unwrap();
             assert_eq!(out.truncated, vec![step == MAX_EPISODE_STEPS; 2]);
             assert_eq!(out.terminated, vec![false; 2]);
+            assert_eq!(out.critic_obs, out.obs);
         }
         assert_eq!(env.steps, vec![0, 0]);
         // The final observation is the old episode's, obs the new episode's first.
         assert_ne!(out.final_obs, out.obs);
+        assert_eq!(out.final_critic_obs, out.final_obs);
         assert_eq!(&out.obs[..OBS_DIM], &env.envs[0].observation());
     }
 
     #[test]
     fn rejects_wrong_batch_and_non_finite_actions() {
         let mut env = PendulumVecEnv::new(2);
-        let mut out = VecStep::new(2, OBS_DIM);
+        let mut out = VecStep::new(2, OBS_DIM, OBS_DIM);
         assert!(matches!(
             env.step(&[0.0], &mut out),
             Err(LearnError::Shape { .. })
+        ));
+        let mut narrow = VecStep::new(2, OBS_DIM, OBS_DIM - 1);
+        assert!(matches!(
+            env.step(&[0.0, 0.0], &mut narrow),
+            Err(LearnError::Shape {
+                what: "critic observation buffer",
+                ..
+            })
         ));
         assert!(matches!(
             env.step(&[0.0, f64::NAN], &mut out),

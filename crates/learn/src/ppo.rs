@@ -24,13 +24,14 @@ pub struct UpdateStats {
     pub kl: f64,
 }
 
-/// Time-outs of one step: which envs were truncated and their final observations.
+/// Time-outs of one step: which envs were truncated and their final critic observations (all
+/// the bootstrap `γ V(s_final)` needs).
 #[derive(Debug)]
 pub struct TimeOuts {
     /// `[K]` Int64 env indices.
     pub env_ids: Tensor,
-    /// `[K, O]` raw final observations.
-    pub final_obs: Tensor,
+    /// `[K, C]` raw final critic observations.
+    pub final_critic_obs: Tensor,
 }
 
 #[derive(Debug)]
@@ -80,16 +81,17 @@ pub fn value_loss(
 }
 
 impl Ppo {
-    pub fn new(
-        policy: ActorCritic,
-        config: PpoConfig,
-        steps: usize,
-        envs: usize,
-        obs_dim: usize,
-        action_dim: usize,
-    ) -> Self {
+    /// A learner whose rollout storage holds `steps` steps of `envs` rows, as wide as the
+    /// policy's observations and actions.
+    pub fn new(policy: ActorCritic, config: PpoConfig, steps: usize, envs: usize) -> Self {
         let optimizer = Adam::new(policy.var_store(), config.learning_rate);
-        let storage = RolloutStorage::new(steps, envs, obs_dim, action_dim);
+        let storage = RolloutStorage::new(
+            steps,
+            envs,
+            policy.obs_dim(),
+            policy.critic_obs_dim(),
+            policy.action_dim(),
+        );
         Ppo {
             config,
             policy,
@@ -118,24 +120,32 @@ impl Ppo {
         self.optimizer.lr()
     }
 
-    /// One rollout step: samples actions `[N, A]` for raw observations `[N, O]`, lets `env`
-    /// answer them, bootstraps time-outs with `γ V(s_final)`, updates the normalizer with the
-    /// new observations (rsl_rl's order) and stores the transition.
+    pub fn storage(&self) -> &RolloutStorage {
+        &self.storage
+    }
+
+    /// One rollout step: samples actions `[N, A]` for raw observations `[N, O]` (valued on
+    /// the critic observations `[N, C]`), lets `env` answer them, bootstraps time-outs with
+    /// `γ V(s_final)` on their final critic observations, updates the normalizers with the new
+    /// observations (rsl_rl's order) and stores the transition.
     pub fn act_and_store(
         &mut self,
         obs: &Tensor,
+        critic_obs: &Tensor,
         next: impl FnOnce(&Tensor) -> Result<EnvAnswer, LearnError>,
     ) -> Result<EnvAnswer, LearnError> {
-        let sample = self.policy.act(obs);
+        let sample = self.policy.act(obs, critic_obs);
         let answer = next(&sample.actions)?;
         let mut rewards = answer.rewards.shallow_clone();
         if let Some(t) = &answer.time_outs {
-            let final_values = self.policy.value(&t.final_obs);
+            let final_values = self.policy.value(&t.final_critic_obs);
             rewards = bootstrap_time_outs(&rewards, &t.env_ids, &final_values, self.config.gamma);
         }
-        self.policy.update_normalizer(&answer.next_obs);
+        self.policy
+            .update_normalizers(&answer.next_obs, &answer.next_critic_obs);
         self.storage.add(&Transition {
             obs,
+            critic_obs,
             actions: &sample.actions,
             rewards: &rewards,
             dones: &answer.dones,
@@ -147,9 +157,10 @@ impl Ppo {
         Ok(answer)
     }
 
-    /// GAE on the stored rollout, then `epochs × minibatches` gradient steps.
-    pub fn update(&mut self, last_obs: &Tensor) -> Result<UpdateStats, LearnError> {
-        let last_values = self.policy.value(last_obs);
+    /// GAE on the stored rollout, bootstrapped from the critic observations `[N, C]` after
+    /// its last step, then `epochs × minibatches` gradient steps.
+    pub fn update(&mut self, last_critic_obs: &Tensor) -> Result<UpdateStats, LearnError> {
+        let last_values = self.policy.value(last_critic_obs);
         let c = &self.config;
         self.storage
             .compute_returns(&last_values, c.gamma, c.lambda);
@@ -157,7 +168,9 @@ impl Ppo {
         let mut lr = self.optimizer.lr();
         let count = (c.minibatches * c.epochs) as f64;
         for batch in self.storage.minibatches(c.minibatches, c.epochs) {
-            let e = self.policy.evaluate(&batch.obs, &batch.actions);
+            let e = self
+                .policy
+                .evaluate(&batch.obs, &batch.critic_obs, &batch.actions);
             let kl = tch::no_grad(|| {
                 gaussian::kl(
                     &batch.old_means,
@@ -212,6 +225,8 @@ impl Ppo {
 pub struct EnvAnswer {
     /// `[N, O]` observations after the step (after auto-reset).
     pub next_obs: Tensor,
+    /// `[N, C]` critic observations after the step (after auto-reset).
+    pub next_critic_obs: Tensor,
     pub rewards: Tensor,
     /// `[N]` 1.0 where an episode ended.
     pub dones: Tensor,

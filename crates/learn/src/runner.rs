@@ -20,7 +20,7 @@ const EPISODE_WINDOW: usize = 100;
 pub struct Progress {
     /// Completed iterations.
     pub iteration: usize,
-    /// Environment transitions collected so far (all envs).
+    /// Environment transitions collected so far (all agent rows).
     pub env_steps: u64,
 }
 
@@ -121,8 +121,9 @@ fn step_env(
 ) -> Result<EnvAnswer, LearnError> {
     env.step(&to_f64(actions)?, buf)?;
     check_finite("environment observation", &buf.obs)?;
+    check_finite("environment critic observation", &buf.critic_obs)?;
     check_finite("environment reward", &buf.rewards)?;
-    let (n, o) = (env.num_envs(), env.obs_dim());
+    let (n, o, c) = (env.num_envs(), env.obs_dim(), env.critic_obs_dim());
     let dones: Vec<f32> = (0..n)
         .map(|i| f32::from(u8::from(buf.terminated[i] || buf.truncated[i])))
         .collect();
@@ -136,23 +137,75 @@ fn step_env(
         let rows: Vec<f64> = ids
             .iter()
             .flat_map(|&i| {
-                buf.final_obs[i as usize * o..(i as usize + 1) * o]
+                buf.final_critic_obs[i as usize * c..(i as usize + 1) * c]
                     .iter()
                     .copied()
             })
             .collect();
-        check_finite("final observation", &rows)?;
+        check_finite("final critic observation", &rows)?;
         Some(TimeOuts {
-            final_obs: to_tensor(&rows, ids.len(), o),
+            final_critic_obs: to_tensor(&rows, ids.len(), c),
             env_ids: Tensor::from_slice(&ids),
         })
     };
     Ok(EnvAnswer {
         next_obs: to_tensor(&buf.obs, n, o),
+        next_critic_obs: to_tensor(&buf.critic_obs, n, c),
         rewards: to_tensor(&buf.rewards, n, 1).view([-1]) * reward_scale,
         dones: Tensor::from_slice(&dones),
         time_outs,
     })
+}
+
+/// Fails with `what` unless the widths `found` and `expected` agree.
+fn check_width(what: &'static str, expected: usize, found: usize) -> Result<(), LearnError> {
+    if found == expected {
+        Ok(())
+    } else {
+        Err(LearnError::Shape {
+            what,
+            expected,
+            found,
+        })
+    }
+}
+
+/// The evaluation env must speak the training env's language, and the learner must be sized
+/// for the training env's rows and widths (a task may give several rows per simulated world,
+/// so `config.env.num_envs` is not the row count).
+fn check_dims(
+    env: &dyn VecEnv,
+    eval_env: &dyn VecEnv,
+    ppo: &Ppo,
+    steps_per_env: usize,
+) -> Result<(), LearnError> {
+    let (o, c, a) = (env.obs_dim(), env.critic_obs_dim(), env.action_dim());
+    check_width("evaluation env observation width", o, eval_env.obs_dim())?;
+    check_width(
+        "evaluation env critic observation width",
+        c,
+        eval_env.critic_obs_dim(),
+    )?;
+    check_width("evaluation env action width", a, eval_env.action_dim())?;
+    let policy = ppo.policy();
+    check_width("policy observation width", o, policy.obs_dim())?;
+    check_width(
+        "policy critic observation width",
+        c,
+        policy.critic_obs_dim(),
+    )?;
+    check_width("policy action width", a, policy.action_dim())?;
+    let storage = ppo.storage();
+    check_width(
+        "rollout storage rows",
+        env.num_envs(),
+        storage.envs() as usize,
+    )?;
+    check_width(
+        "rollout storage steps",
+        steps_per_env,
+        storage.steps() as usize,
+    )
 }
 
 pub struct Runner {
@@ -162,6 +215,7 @@ pub struct Runner {
     steps_per_env: usize,
     reward_scale: f64,
     obs: Tensor,
+    critic_obs: Tensor,
     buf: VecStep,
     episodes: EpisodeStats,
     progress: Progress,
@@ -170,7 +224,8 @@ pub struct Runner {
 
 impl Runner {
     /// Starts (or, with a non-zero `progress`, continues) a run: reseeds libtorch and the
-    /// training envs from the config seed and the iteration, and resets the envs.
+    /// training envs from the config seed and the iteration, and resets the envs. `ppo` must
+    /// be sized for `env`'s rows and widths, and `eval_env` have `env`'s widths.
     pub fn new(
         config: &TrainConfig,
         mut env: Box<dyn VecEnv>,
@@ -178,25 +233,23 @@ impl Runner {
         ppo: Ppo,
         progress: Progress,
     ) -> Result<Self, LearnError> {
-        let (n, o) = (env.num_envs(), env.obs_dim());
-        if n != config.env.num_envs
-            || eval_env.obs_dim() != o
-            || eval_env.action_dim() != env.action_dim()
-        {
-            return Err(LearnError::Shape {
-                what: "environment batch",
-                expected: config.env.num_envs,
-                found: n,
-            });
-        }
+        check_dims(
+            env.as_ref(),
+            eval_env.as_ref(),
+            &ppo,
+            config.env.steps_per_env,
+        )?;
+        let (n, o, c) = (env.num_envs(), env.obs_dim(), env.critic_obs_dim());
         let seed = iteration_seed(config.run.seed, progress.iteration);
         tch::manual_seed(seed as i64);
-        let mut first = vec![0.0; n * o];
-        env.reset(seed, &mut first)?;
-        check_finite("environment observation", &first)?;
+        let (mut obs, mut critic_obs) = (vec![0.0; n * o], vec![0.0; n * c]);
+        env.reset(seed, &mut obs, &mut critic_obs)?;
+        check_finite("environment observation", &obs)?;
+        check_finite("environment critic observation", &critic_obs)?;
         Ok(Runner {
-            obs: to_tensor(&first, n, o),
-            buf: VecStep::new(n, o),
+            obs: to_tensor(&obs, n, o),
+            critic_obs: to_tensor(&critic_obs, n, c),
+            buf: VecStep::new(n, o, c),
             episodes: EpisodeStats::new(n),
             steps_per_env: config.env.steps_per_env,
             reward_scale: config.ppo.reward_scale,
@@ -227,14 +280,17 @@ impl Runner {
         for _ in 0..self.steps_per_env {
             let (env, buf, episodes) = (&mut self.env, &mut self.buf, &mut self.episodes);
             let reward_scale = self.reward_scale;
-            let answer = self.ppo.act_and_store(&self.obs, |actions| {
-                let answer = step_env(env.as_mut(), buf, actions, reward_scale)?;
-                episodes.record(buf);
-                Ok(answer)
-            })?;
+            let answer = self
+                .ppo
+                .act_and_store(&self.obs, &self.critic_obs, |actions| {
+                    let answer = step_env(env.as_mut(), buf, actions, reward_scale)?;
+                    episodes.record(buf);
+                    Ok(answer)
+                })?;
             self.obs = answer.next_obs;
+            self.critic_obs = answer.next_critic_obs;
         }
-        let update = self.ppo.update(&self.obs)?;
+        let update = self.ppo.update(&self.critic_obs)?;
         let samples = (self.env.num_envs() * self.steps_per_env) as u64;
         self.progress.iteration += 1;
         self.progress.env_steps += samples;
@@ -252,13 +308,14 @@ impl Runner {
 
     /// Mean undiscounted return of the deterministic policy (the Gaussian mean) over one
     /// episode per evaluation env, always from the same initial states. Relies on every
-    /// episode ending (tasks have a time limit).
+    /// episode ending (tasks have a time limit). Acts on the actor's observations alone, as the
+    /// exported policy does; the critic observations are written but not read.
     pub fn evaluate(&mut self) -> Result<f64, LearnError> {
         let env = self.eval_env.as_mut();
-        let (n, o) = (env.num_envs(), env.obs_dim());
+        let (n, o, c) = (env.num_envs(), env.obs_dim(), env.critic_obs_dim());
         let mut obs = vec![0.0; n * o];
-        env.reset(self.eval_seed, &mut obs)?;
-        let mut buf = VecStep::new(n, o);
+        env.reset(self.eval_seed, &mut obs, &mut vec![0.0; n * c])?;
+        let mut buf = VecStep::new(n, o, c);
         let mut returns = vec![0.0; n];
         let mut running = vec![true; n];
         while running.iter().any(|&r| r) {
@@ -275,5 +332,242 @@ impl Runner {
         }
         check_finite("evaluation return", &returns)?;
         Ok(returns.iter().sum::<f64>() / n as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::actor_critic::ActorCritic;
+    use crate::env::check_len;
+
+    /// Steps after which every episode of [`Privileged`] is truncated.
+    const EPISODE: usize = 3;
+    const OBS: usize = 2;
+
+    /// Rows observing `[x, row]`; the critic also sees `privileged` copies of the step count
+    /// within the episode, state the actor has no access to.
+    struct Privileged {
+        x: Vec<f64>,
+        t: Vec<usize>,
+        privileged: usize,
+    }
+
+    impl Privileged {
+        fn boxed(rows: usize, privileged: usize) -> Box<dyn VecEnv> {
+            Box::new(Privileged {
+                x: vec![0.0; rows],
+                t: vec![0; rows],
+                privileged,
+            })
+        }
+
+        fn observe(&self, i: usize, obs: &mut [f64], critic_obs: &mut [f64]) {
+            obs.copy_from_slice(&[self.x[i], i as f64]);
+            critic_obs[..OBS].copy_from_slice(obs);
+            critic_obs[OBS..].fill(self.t[i] as f64);
+        }
+    }
+
+    impl VecEnv for Privileged {
+        fn num_envs(&self) -> usize {
+            self.x.len()
+        }
+
+        fn obs_dim(&self) -> usize {
+            OBS
+        }
+
+        fn action_dim(&self) -> usize {
+            1
+        }
+
+        fn critic_obs_dim(&self) -> usize {
+            OBS + self.privileged
+        }
+
+        fn reset(&mut self, _: u64, obs: &mut [f64], critic: &mut [f64]) -> Result<(), LearnError> {
+            let (n, c) = (self.num_envs(), self.critic_obs_dim());
+            check_len("observation batch", obs, n * OBS)?;
+            check_len("critic observation batch", critic, n * c)?;
+            let rows = obs.chunks_exact_mut(OBS).zip(critic.chunks_exact_mut(c));
+            for (i, (o, c)) in rows.enumerate() {
+                self.reset_env(i, o, c)?;
+            }
+            Ok(())
+        }
+
+        fn reset_env(
+            &mut self,
+            i: usize,
+            obs: &mut [f64],
+            critic: &mut [f64],
+        ) -> Result<(), LearnError> {
+            self.x[i] = 0.1 * i as f64;
+            self.t[i] = 0;
+            self.observe(i, obs, critic);
+            Ok(())
+        }
+
+        fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
+            let c = self.critic_obs_dim();
+            for (i, a) in actions.iter().enumerate() {
+                out.rewards[i] = -self.x[i].powi(2);
+                self.x[i] += 0.1 * a.clamp(-1.0, 1.0);
+                self.t[i] += 1;
+                out.terminated[i] = false;
+                out.truncated[i] = self.t[i] == EPISODE;
+                let (o_row, c_row) = (i * OBS..(i + 1) * OBS, i * c..(i + 1) * c);
+                self.observe(
+                    i,
+                    &mut out.obs[o_row.clone()],
+                    &mut out.critic_obs[c_row.clone()],
+                );
+                if out.truncated[i] {
+                    out.final_obs[o_row.clone()].copy_from_slice(&out.obs[o_row.clone()]);
+                    out.final_critic_obs[c_row.clone()]
+                        .copy_from_slice(&out.critic_obs[c_row.clone()]);
+                    self.reset_env(i, &mut out.obs[o_row], &mut out.critic_obs[c_row])?;
+                }
+            }
+            Ok(())
+        }
+    }
+
+    /// Three worlds of two agent rows each, four steps per rollout.
+    fn config() -> TrainConfig {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/train/pendulum.toml"
+        );
+        let mut config = TrainConfig::load(path).unwrap();
+        config.env.num_envs = 3;
+        config.env.steps_per_env = 4;
+        config.ppo.epochs = 1;
+        config.ppo.minibatches = 2;
+        config
+    }
+
+    fn ppo(config: &TrainConfig, rows: usize, critic_obs_dim: usize) -> Ppo {
+        let policy = ActorCritic::new(OBS, critic_obs_dim, 1, &config.policy);
+        Ppo::new(policy, config.ppo.clone(), config.env.steps_per_env, rows)
+    }
+
+    fn values(t: &Tensor) -> Vec<f64> {
+        to_f64(t).unwrap()
+    }
+
+    #[test]
+    fn the_critic_learns_from_the_privileged_observations() {
+        tch::manual_seed(0);
+        let config = config();
+        let (env, eval_env) = (Privileged::boxed(6, 1), Privileged::boxed(2, 1));
+        let mut runner = Runner::new(
+            &config,
+            env,
+            eval_env,
+            ppo(&config, 6, 3),
+            Progress::default(),
+        )
+        .unwrap();
+        assert_eq!(runner.obs.size(), [6, 2]);
+        assert_eq!(runner.critic_obs.size(), [6, 3]);
+
+        let stats = runner.iterate().unwrap();
+        assert_eq!(
+            stats.progress.env_steps, 24,
+            "rows, not worlds, are counted"
+        );
+        assert!(stats.update.value_loss.is_finite());
+        // After four steps of three-step episodes every row is one step into its second.
+        assert_eq!(values(&runner.critic_obs.select(1, 2)), vec![1.0; 6]);
+
+        // The rollout stored the critic observations beside the actor's: steps 0..4 had
+        // step counts 0, 1, 2, 0 in every row.
+        let batch = runner.ppo.storage().minibatches(1, 1).next().unwrap();
+        assert_eq!(batch.obs.size(), [24, 2]);
+        assert_eq!(batch.critic_obs.size(), [24, 3]);
+        assert_eq!(
+            values(&batch.critic_obs.narrow(1, 0, 2)),
+            values(&batch.obs)
+        );
+        let counts = values(&batch.critic_obs.select(1, 2));
+        let of = |k: f64| counts.iter().filter(|&&c| c == k).count();
+        assert_eq!((of(0.0), of(1.0), of(2.0)), (12, 6, 6));
+
+        let policy = runner.ppo.policy();
+        let critic_norm = policy.critic_obs_normalizer().unwrap();
+        assert_eq!(
+            (critic_norm.mean().size(), critic_norm.count()),
+            (vec![3], 24)
+        );
+        assert_eq!(policy.obs_normalizer().unwrap().mean().size(), [2]);
+        assert!(runner.evaluate().unwrap().is_finite());
+    }
+
+    #[test]
+    fn time_outs_carry_the_final_critic_observations() {
+        let mut env = Privileged::boxed(4, 2);
+        let (o, c) = (env.obs_dim(), env.critic_obs_dim());
+        env.reset(0, &mut vec![0.0; 4 * o], &mut vec![0.0; 4 * c])
+            .unwrap();
+        let mut buf = VecStep::new(4, o, c);
+        let actions = Tensor::zeros([4, 1], (Kind::Float, tch::Device::Cpu));
+        for _ in 1..EPISODE {
+            let answer = step_env(env.as_mut(), &mut buf, &actions, 1.0).unwrap();
+            assert!(answer.time_outs.is_none());
+        }
+        let answer = step_env(env.as_mut(), &mut buf, &actions, 1.0).unwrap();
+        let time_outs = answer.time_outs.expect("all rows timed out");
+        assert_eq!(
+            Vec::<i64>::try_from(&time_outs.env_ids).unwrap(),
+            [0, 1, 2, 3]
+        );
+        assert_eq!(time_outs.final_critic_obs.size(), [4, 4]);
+        let last = EPISODE as f64;
+        assert_eq!(
+            values(&time_outs.final_critic_obs.narrow(1, 2, 2)),
+            vec![last; 8]
+        );
+        assert_eq!(answer.next_critic_obs.size(), [4, 4]);
+        assert_eq!(
+            values(&answer.next_critic_obs.narrow(1, 2, 2)),
+            vec![0.0; 8]
+        );
+    }
+
+    #[test]
+    fn mismatched_widths_and_rows_are_named() {
+        let config = config();
+        let refused = |env, eval_env, ppo| match Runner::new(
+            &config,
+            env,
+            eval_env,
+            ppo,
+            Progress::default(),
+        ) {
+            Err(LearnError::Shape { what, .. }) => what,
+            Err(e) => panic!("unexpected error {e}"),
+            Ok(_) => panic!("accepted"),
+        };
+        let what = refused(
+            Privileged::boxed(6, 1),
+            Privileged::boxed(2, 0),
+            ppo(&config, 6, 3),
+        );
+        assert_eq!(what, "evaluation env critic observation width");
+        let what = refused(
+            Privileged::boxed(6, 1),
+            Privileged::boxed(2, 1),
+            ppo(&config, 6, 2),
+        );
+        assert_eq!(what, "policy critic observation width");
+        // Sized by the config's worlds instead of the env's rows.
+        let what = refused(
+            Privileged::boxed(6, 1),
+            Privileged::boxed(2, 1),
+            ppo(&config, 3, 3),
+        );
+        assert_eq!(what, "rollout storage rows");
     }
 }

@@ -11,6 +11,8 @@ const ADV_EPS: f64 = 1e-8;
 pub struct Transition<'a> {
     /// `[N, O]` raw observations the action was taken in.
     pub obs: &'a Tensor,
+    /// `[N, C]` raw critic observations of the same state (what `values` were computed on).
+    pub critic_obs: &'a Tensor,
     pub actions: &'a Tensor,
     /// `[N]` rewards, time-out bootstrap already added.
     pub rewards: &'a Tensor,
@@ -26,6 +28,7 @@ pub struct Transition<'a> {
 #[derive(Debug)]
 pub struct Batch {
     pub obs: Tensor,
+    pub critic_obs: Tensor,
     pub actions: Tensor,
     pub old_values: Tensor,
     pub advantages: Tensor,
@@ -38,6 +41,7 @@ pub struct Batch {
 #[derive(Debug)]
 pub struct RolloutStorage {
     obs: Tensor,
+    critic_obs: Tensor,
     actions: Tensor,
     rewards: Tensor,
     dones: Tensor,
@@ -51,11 +55,18 @@ pub struct RolloutStorage {
 }
 
 impl RolloutStorage {
-    pub fn new(steps: usize, envs: usize, obs_dim: usize, action_dim: usize) -> Self {
+    pub fn new(
+        steps: usize,
+        envs: usize,
+        obs_dim: usize,
+        critic_obs_dim: usize,
+        action_dim: usize,
+    ) -> Self {
         let (t, n) = (steps as i64, envs as i64);
         let z = |shape: &[i64]| Tensor::zeros(shape, (Kind::Float, Device::Cpu));
         RolloutStorage {
             obs: z(&[t, n, obs_dim as i64]),
+            critic_obs: z(&[t, n, critic_obs_dim as i64]),
             actions: z(&[t, n, action_dim as i64]),
             rewards: z(&[t, n]),
             dones: z(&[t, n]),
@@ -73,6 +84,11 @@ impl RolloutStorage {
         self.obs.size()[0]
     }
 
+    /// Rows per step (agent rows, see [`crate::env`]).
+    pub fn envs(&self) -> i64 {
+        self.obs.size()[1]
+    }
+
     pub fn is_full(&self) -> bool {
         self.step == self.steps()
     }
@@ -83,6 +99,7 @@ impl RolloutStorage {
         let s = self.step;
         for (dst, src) in [
             (&mut self.obs, t.obs),
+            (&mut self.critic_obs, t.critic_obs),
             (&mut self.actions, t.actions),
             (&mut self.rewards, t.rewards),
             (&mut self.dones, t.dones),
@@ -97,7 +114,7 @@ impl RolloutStorage {
     }
 
     /// GAE returns and whole-batch-normalised advantages; `last_values` `[N]` are the critic's
-    /// values of the observations after the last step. Empties the buffer for the next rollout
+    /// values of the critic observations after the last step. Empties the buffer for the next rollout
     /// (the data stays readable by [`RolloutStorage::minibatches`]).
     pub fn compute_returns(&mut self, last_values: &Tensor, gamma: f64, lambda: f64) {
         self.returns = gae(
@@ -124,8 +141,9 @@ impl RolloutStorage {
         let size = batch / minibatches as i64;
         let perm = Tensor::randperm(size * minibatches as i64, (Kind::Int64, Device::Cpu));
         let flat = |t: &Tensor| t.flatten(0, 1);
-        let (obs, actions, values, advantages) = (
+        let (obs, critic_obs, actions, values, advantages) = (
             flat(&self.obs),
+            flat(&self.critic_obs),
             flat(&self.actions),
             flat(&self.values),
             flat(&self.advantages),
@@ -143,6 +161,7 @@ impl RolloutStorage {
                 let pick = |t: &Tensor| t.index_select(0, &idx);
                 Batch {
                     obs: pick(&obs),
+                    critic_obs: pick(&critic_obs),
                     actions: pick(&actions),
                     old_values: pick(&values),
                     advantages: pick(&advantages),
@@ -244,13 +263,17 @@ mod tests {
 
     #[test]
     fn advantages_are_normalised_over_the_whole_batch() {
-        let mut s = RolloutStorage::new(2, 2, 1, 1);
+        let mut s = RolloutStorage::new(2, 2, 1, 3, 1);
         for k in 0..2 {
             let r = Tensor::from_slice(&[k as f32, 3.0 * k as f32]);
             let z = Tensor::zeros([2], (Kind::Float, Device::Cpu));
             let z2 = Tensor::zeros([2, 1], (Kind::Float, Device::Cpu));
+            // Sample ids 2k, 2k + 1 as obs, ten times them as critic obs.
+            let id = Tensor::from_slice(&[2.0 * k as f32, 2.0 * k as f32 + 1.0]).view([2, 1]);
+            let c = id.repeat([1, 3]) * 10.0;
             s.add(&Transition {
-                obs: &z2,
+                obs: &id,
+                critic_obs: &c,
                 actions: &z2,
                 rewards: &r,
                 dones: &z,
@@ -267,5 +290,11 @@ mod tests {
         let batches: Vec<Batch> = s.minibatches(2, 3).collect();
         assert_eq!(batches.len(), 6);
         assert!(batches.iter().all(|b| b.obs.size() == [2, 1]));
+        assert!(batches.iter().all(|b| b.critic_obs.size() == [2, 3]));
+        // Critic observations travel with their samples.
+        for b in &batches {
+            let expected = b.obs.repeat([1, 3]) * 10.0;
+            assert!(close(&b.critic_obs, &expected), "{}", b.critic_obs);
+        }
     }
 }

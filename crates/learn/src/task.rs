@@ -5,23 +5,45 @@ use std::collections::BTreeMap;
 
 use moonhaul_core::state::Phase;
 
-use crate::config::Task;
+use moonhaul_core::observation::{
+    layout_fields, LAYOUT_FIELDS_KEY, LAYOUT_VERSION_KEY, OBS_LAYOUT_VERSION,
+};
+use moonhaul_sim::task::TaskConfig;
+use moonhaul_sim::SimConfig;
+
+use crate::config::{Task, TrainConfig};
 use crate::env::VecEnv;
 use crate::pendulum::PendulumVecEnv;
+use crate::phase_env::PhaseVecEnv;
 use crate::LearnError;
 
-/// `num_envs` environments of `task`. The robot phase tasks have no reward, reset or
-/// termination in this build and are refused with a clear error.
-pub fn make_env(task: Task, num_envs: usize) -> Result<Box<dyn VecEnv>, LearnError> {
-    match task {
-        Task::Pendulum => Ok(Box::new(PendulumVecEnv::new(num_envs))),
-        Task::Lift | Task::Transport | Task::Place => Err(LearnError::TaskUnavailable {
-            task: task.name().into(),
-            reason: "this build defines no reward, reset or termination for the phase tasks; \
-                     only `pendulum` can be trained"
-                .into(),
-        }),
-    }
+/// `num_envs` environments of the config's task: pendulums, or simulated worlds of a phase
+/// task (two rows each, one per unit; see [`crate::phase_env`]).
+pub fn make_env(config: &TrainConfig, num_envs: usize) -> Result<Box<dyn VecEnv>, LearnError> {
+    let task = config.run.task;
+    let phase = match task {
+        Task::Pendulum => return Ok(Box::new(PendulumVecEnv::new(num_envs))),
+        Task::Lift => Phase::Lift,
+        Task::Transport => Phase::Transport,
+        Task::Place => Phase::Place,
+    };
+    let missing = |section: &str| LearnError::InvalidConfig {
+        field: section.into(),
+        reason: format!("the {} task needs it", task.name()),
+    };
+    let world = config.world.as_ref().ok_or_else(|| missing("world"))?;
+    let reward = config.reward.ok_or_else(|| missing("reward"))?;
+    let sim = SimConfig::load(&world.sim)?;
+    let tasks = TaskConfig::load(&world.tasks)?;
+    Ok(Box::new(PhaseVecEnv::new(
+        phase,
+        sim,
+        tasks,
+        reward,
+        config.ppo.gamma,
+        num_envs,
+        config.run.threads,
+    )?))
 }
 
 /// The phase recorded in an exported policy, and a `task` metadata entry.
@@ -36,10 +58,13 @@ pub fn export_identity(task: Task) -> (Phase, BTreeMap<String, String>) {
         Task::Transport => (Phase::Transport, "transport"),
         Task::Place => (Phase::Place, "place"),
     };
-    (
-        phase,
-        BTreeMap::from([("task".to_string(), name.to_string())]),
-    )
+    let mut extra = BTreeMap::from([("task".to_string(), name.to_string())]);
+    if task != Task::Pendulum {
+        // The onboard runtime refuses a policy whose observation layout is not its own.
+        extra.insert(LAYOUT_VERSION_KEY.into(), OBS_LAYOUT_VERSION.to_string());
+        extra.insert(LAYOUT_FIELDS_KEY.into(), layout_fields());
+    }
+    (phase, extra)
 }
 
 #[cfg(test)]
@@ -47,17 +72,12 @@ mod tests {
     use super::*;
 
     #[test]
-    fn phase_tasks_are_a_clear_error() {
-        for task in [Task::Lift, Task::Transport, Task::Place] {
-            let err = make_env(task, 4).err().expect("unavailable");
-            assert!(
-                matches!(&err, LearnError::TaskUnavailable { task: t, .. } if t == task.name())
-            );
-            assert!(err.to_string().contains("not available"));
+    fn every_task_builds_its_env() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/train/");
+        for (name, rows) in [("pendulum", 3), ("lift", 6), ("transport", 6), ("place", 6)] {
+            let config = TrainConfig::load(format!("{dir}{name}.toml")).unwrap();
+            let env = make_env(&config, 3).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(env.num_envs(), rows, "{name}");
         }
-        assert_eq!(
-            make_env(Task::Pendulum, 4).map(|e| e.num_envs()).ok(),
-            Some(4)
-        );
     }
 }

@@ -21,6 +21,7 @@ use crate::export::export_policy;
 use crate::metrics::{MetricsLog, MetricsRow};
 use crate::plot::plot_curves;
 use crate::ppo::Ppo;
+use crate::provenance;
 use crate::runner::{Progress, Runner};
 use crate::task::{export_identity, make_env};
 use crate::LearnError;
@@ -97,17 +98,18 @@ fn prepare_run_dir(dir: &Path) -> Result<PathBuf, LearnError> {
     Ok(checkpoints)
 }
 
-/// `num_envs × steps_per_env × width`, the size of the largest rollout tensor, or an error
-/// if it does not fit in a tensor dimension product (i64).
-fn rollout_size(config: &TrainConfig, width: usize) -> Result<i64, LearnError> {
-    let (envs, steps) = (config.env.num_envs, config.env.steps_per_env);
-    envs.checked_mul(steps)
+/// `rows × steps_per_env × width`, the size of the largest rollout tensor, or an error if it
+/// does not fit in a tensor dimension product (i64). `rows` is `config.env.num_envs` before
+/// the env exists, then the env's agent rows (several per world for some tasks).
+fn rollout_size(config: &TrainConfig, rows: usize, width: usize) -> Result<i64, LearnError> {
+    let steps = config.env.steps_per_env;
+    rows.checked_mul(steps)
         .and_then(|batch| batch.checked_mul(width.max(1)))
         .and_then(|size| i64::try_from(size).ok())
         .ok_or_else(|| LearnError::InvalidConfig {
             field: "env.num_envs".into(),
             reason: format!(
-                "num_envs {envs} × steps_per_env {steps} × {width} values per step overflows"
+                "{rows} env rows × steps_per_env {steps} × {width} values per step overflows"
             ),
         })
 }
@@ -127,25 +129,29 @@ pub fn train(
     let start = Instant::now();
     let dir = &options.run_dir;
     // Before anything is allocated from it or written: the rollout batch must be countable.
-    rollout_size(config, 1)?;
+    rollout_size(config, config.env.num_envs, 1)?;
     prepare_run_dir(dir)?;
 
     let threads = i32::try_from(config.run.threads).unwrap_or(i32::MAX);
     tch::set_num_threads(threads);
     tch::manual_seed(config.run.seed as i64);
     let task = config.run.task;
-    let env = make_env(task, config.env.num_envs)?;
-    let eval_env = make_env(task, config.run.eval_episodes)?;
-    let (obs_dim, action_dim) = (env.obs_dim(), env.action_dim());
-    rollout_size(config, obs_dim.max(action_dim))?;
-    let policy = ActorCritic::new(obs_dim, action_dim, &config.policy);
+    let env = make_env(config, config.env.num_envs)?;
+    let eval_env = make_env(config, config.run.eval_episodes)?;
+    let (obs_dim, critic_obs_dim) = (env.obs_dim(), env.critic_obs_dim());
+    let action_dim = env.action_dim();
+    rollout_size(
+        config,
+        env.num_envs(),
+        obs_dim.max(critic_obs_dim).max(action_dim),
+    )?;
+    let policy = ActorCritic::new(obs_dim, critic_obs_dim, action_dim, &config.policy);
+    // Sized by the env's rows, not `config.env.num_envs` (worlds): see `crate::env`.
     let mut ppo = Ppo::new(
         policy,
         config.ppo.clone(),
         config.env.steps_per_env,
-        config.env.num_envs,
-        obs_dim,
-        action_dim,
+        env.num_envs(),
     );
     let progress = match &options.resume {
         Some(path) => checkpoint::load(path, &mut ppo, task)?,
@@ -210,6 +216,21 @@ pub fn train(
     if let Some(r) = eval_return {
         extra.insert("eval_return".into(), r.to_string());
     }
+    if let Some(last) = metrics.rows().last() {
+        if let Some(r) = last.mean_return {
+            extra.insert("final_mean_return".into(), r.to_string());
+        }
+        if let Some(l) = last.mean_episode_length {
+            extra.insert("final_mean_episode_length".into(), l.to_string());
+        }
+    }
+    extra.insert("commit".into(), provenance::commit());
+    extra.insert("config_sha256".into(), provenance::config_digest(config)?);
+    // This session's wall time; a resumed run's earlier sessions are in its metrics.csv.
+    extra.insert(
+        "wall_s".into(),
+        format!("{:.0}", start.elapsed().as_secs_f64()),
+    );
     let env = runner.env();
     let exported = export_policy(
         runner.ppo().policy(),

@@ -1,5 +1,6 @@
 //! The onboard runtime (pure-Rust MLP in moonhaul-core) computes the same actions as the
 //! trainer's tch forward pass, normalizer included, before and after a trip through the file.
+//! The critic reads a wider (privileged) observation and its normalizer is not exported.
 
 use moonhaul_core::policy::Policy;
 use moonhaul_core::state::Phase;
@@ -17,16 +18,20 @@ fn core_runtime_equals_tch_forward_within_1e_5() {
         actor_hidden: vec![256, 128, 64],
         critic_hidden: vec![64],
         init_std: 1.0,
+        actor_output_gain: 1.0,
         std_type: StdType::Scalar,
         obs_normalization: true,
     };
-    let mut ac = ActorCritic::new(obs_dim, action_dim, &config);
+    let critic_obs_dim = obs_dim + 7;
+    let mut ac = ActorCritic::new(obs_dim, critic_obs_dim, action_dim, &config);
     // A non-trivial normalizer: per-feature offsets and scales far from (0, 1).
     let scale = Tensor::linspace(0.1, 20.0, obs_dim as i64, (Kind::Float, Device::Cpu));
     let offset = Tensor::linspace(-5.0, 7.0, obs_dim as i64, (Kind::Float, Device::Cpu));
+    let opts = (Kind::Float, Device::Cpu);
     for _ in 0..4 {
-        ac.update_normalizer(
-            &(Tensor::randn([256, obs_dim as i64], (Kind::Float, Device::Cpu)) * &scale + &offset),
+        ac.update_normalizers(
+            &(Tensor::randn([256, obs_dim as i64], opts) * &scale + &offset),
+            &(Tensor::randn([256, critic_obs_dim as i64], opts) * 3.0 - 1.0),
         );
     }
     let action_scale: Vec<f64> = (0..action_dim).map(|i| 0.5 + i as f64 * 0.1).collect();
@@ -45,6 +50,7 @@ fn core_runtime_equals_tch_forward_within_1e_5() {
     policy.write_file(&path).unwrap();
     let loaded = Policy::from_file(&path).unwrap();
     assert_eq!(loaded, policy);
+    assert_eq!(loaded.obs_dim(), obs_dim);
 
     let n = 64;
     let obs =

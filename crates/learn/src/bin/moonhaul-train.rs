@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! moonhaul-train --config configs/train/pendulum.toml [--out DIR] [--seed N] [--resume CKPT]
+//!                [--time-limit-s S]
 //! ```
 //!
 //! Ctrl-C stops after the current iteration and keeps a checkpoint of it; a second Ctrl-C
@@ -68,6 +69,10 @@ struct Args {
     /// Continue from this checkpoint (`<run>/checkpoints/iter_NNNNNN.safetensors`).
     #[arg(long)]
     resume: Option<PathBuf>,
+    /// Wall-time budget, s: stop after the iteration that passes it, as Ctrl-C does (keeping a
+    /// checkpoint and exporting the policy).
+    #[arg(long)]
+    time_limit_s: Option<f64>,
 }
 
 fn main() -> Result<()> {
@@ -97,6 +102,17 @@ fn main() -> Result<()> {
         eprintln!("\nstopping after this iteration (Ctrl-C again to abort)");
     })
     .context("installing the Ctrl-C handler")?;
+    if let Some(limit) = args.time_limit_s {
+        if !(limit.is_finite() && limit > 0.0) {
+            bail!("--time-limit-s {limit}: must be a positive number of seconds");
+        }
+        let budget_flag = Arc::clone(&stop);
+        let budget = std::time::Duration::from_secs_f64(limit.min(1e9));
+        std::thread::spawn(move || {
+            std::thread::sleep(budget);
+            budget_flag.store(true, Ordering::SeqCst);
+        });
+    }
 
     let bar = ProgressBar::new(config.run.iterations as u64);
     bar.set_style(

@@ -1,0 +1,327 @@
+//! The lift, transport and place tasks as a [`VecEnv`] over [`moonhaul_sim::BatchEnv`]: the
+//! episodes of [`moonhaul_sim::task`] plus the paper's rewards ([`crate::reward`]).
+//!
+//! **One row per unit.** The actor is shared by both units (see
+//! [`moonhaul_core::observation`]), so each world contributes two rows: row `2w + i` is unit
+//! `i` of world `w`, observing o⁽ⁱ⁾ and emitting its u⁽ⁱ⁾. Both rows of a world get the world's
+//! reward and end together; the critic row adds privileged truth
+//! ([`moonhaul_sim::task::CRITIC_OBS_DIM`]).
+//!
+//! **Terminations and the all-negative rewards.** Every term of r_L, r_T and r_P is ≤ 0, so a
+//! plain termination would *end* the penalties and pay a policy to break its grasp. A
+//! terminated episode therefore receives, on its last step, the discounted sum of that step's
+//! reward held until the time limit, `r · (1 − γ^k)/(1 − γ)` for the k steps left: failing is
+//! worth what staying in the failed state would have cost, no more and no less.
+
+use moonhaul_core::observation::ACTOR_OBS_DIM;
+use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
+use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
+use moonhaul_sim::task::{Episode, PhaseTask, StepOutcome, TaskConfig, CRITIC_OBS_DIM};
+use moonhaul_sim::{BatchEnv, SimConfig, SimError};
+use rand_chacha::ChaCha8Rng;
+
+use crate::env::{check_len, VecEnv, VecStep};
+use crate::reward::{force_variance, Goal, PayloadSample, RewardConfig};
+use crate::LearnError;
+
+/// Everything one world needs between steps, and its outputs of the last step.
+struct World {
+    episode: Episode,
+    rng: ChaCha8Rng,
+    commands: [UnitCommand; UNITS],
+    obs: [[f64; ACTOR_OBS_DIM]; UNITS],
+    critic: [[f64; CRITIC_OBS_DIM]; UNITS],
+    final_obs: [[f64; ACTOR_OBS_DIM]; UNITS],
+    final_critic: [[f64; CRITIC_OBS_DIM]; UNITS],
+    reward: f64,
+    outcome: StepOutcome,
+}
+
+/// What the reward sees of the payload (privileged truth).
+pub fn payload_sample(state: &EnvState) -> PayloadSample {
+    let p = &state.payload;
+    PayloadSample {
+        height_m: p.height_m,
+        vertical_speed_mps: p.linvel_mps.z,
+        tilt_rad: p.tilt_rad,
+        planar_position_m: [p.pose.translation.x, p.pose.translation.y],
+        planar_velocity_mps: [p.linvel_mps.x, p.linvel_mps.y],
+    }
+}
+
+/// The phase reward of one step.
+pub fn phase_reward(
+    reward: &RewardConfig,
+    task: &PhaseTask,
+    scene: &SceneModel,
+    env: &Env,
+    episode: &Episode,
+    state: &EnvState,
+) -> f64 {
+    let sample = payload_sample(state);
+    let p_ref = episode.reference_position_m(task);
+    let v_cmd = episode.command_velocity_mps(task);
+    let goal = Goal {
+        height_m: episode.goal_height_m(),
+        position_m: [p_ref.x, p_ref.y],
+        velocity_mps: [v_cmd.x, v_cmd.y],
+    };
+    match task.phase {
+        Phase::Lift | Phase::Idle => {
+            let mass_kg = scene.payloads[&env.payload_kind()].model.bodies[0]
+                .inertia
+                .mass_kg
+                * env.draw().payload_mass_scale;
+            let weight_n = mass_kg * scene.config.physics.gravity_mps2.abs();
+            let forces = state.units.map(|u| u.grasp.force_n);
+            reward.lift(&sample, &goal, force_variance(&forces, weight_n))
+        }
+        Phase::Transport => reward.transport(&sample, &goal),
+        Phase::Place => reward.place(&sample, &goal),
+    }
+}
+
+/// A batch of phase-task worlds.
+pub struct PhaseVecEnv {
+    batch: BatchEnv,
+    task: PhaseTask,
+    reward: RewardConfig,
+    gamma: f64,
+    worlds: Vec<World>,
+}
+
+impl PhaseVecEnv {
+    /// `worlds` simulated worlds (2 rows each) of `phase` on `threads` simulator threads,
+    /// with domain randomization on.
+    pub fn new(
+        phase: Phase,
+        sim: SimConfig,
+        tasks: TaskConfig,
+        reward: RewardConfig,
+        gamma: f64,
+        worlds: usize,
+        threads: usize,
+    ) -> Result<Self, LearnError> {
+        let scene = SceneModel::new(sim)?;
+        let task = PhaseTask::new(phase, tasks, &scene)?;
+        let options = task.env_options(true, None);
+        let batch = BatchEnv::new(scene, worlds, 0, options, threads)?;
+        let mut env = PhaseVecEnv {
+            batch,
+            task,
+            reward,
+            gamma,
+            worlds: Vec::with_capacity(worlds),
+        };
+        env.begin_all(0)?;
+        Ok(env)
+    }
+
+    pub fn task(&self) -> &PhaseTask {
+        &self.task
+    }
+
+    /// Starts an episode in every world from its current (freshly built) state.
+    fn begin_all(&mut self, seed: u64) -> Result<(), LearnError> {
+        let scene = self.batch.scene();
+        let mut worlds = Vec::with_capacity(self.batch.len());
+        for (i, (env, state)) in self
+            .batch
+            .envs()
+            .iter()
+            .zip(self.batch.states())
+            .enumerate()
+        {
+            let mut rng = PhaseTask::rng(moonhaul_sim::batch::env_seed(seed, i));
+            let episode = self.task.begin(scene, env, state, &mut rng)?;
+            let mut world = World {
+                episode,
+                rng,
+                commands: [UnitCommand::default(); UNITS],
+                obs: [[0.0; ACTOR_OBS_DIM]; UNITS],
+                critic: [[0.0; CRITIC_OBS_DIM]; UNITS],
+                final_obs: [[0.0; ACTOR_OBS_DIM]; UNITS],
+                final_critic: [[0.0; CRITIC_OBS_DIM]; UNITS],
+                reward: 0.0,
+                outcome: StepOutcome {
+                    terminated: None,
+                    truncated: false,
+                },
+            };
+            observe(&self.task, scene, env, state, &mut world)?;
+            worlds.push(world);
+        }
+        self.worlds = worlds;
+        Ok(())
+    }
+
+    fn write_rows(&self, obs: &mut [f64], critic: &mut [f64]) {
+        for (w, world) in self.worlds.iter().enumerate() {
+            for i in 0..UNITS {
+                let row = w * UNITS + i;
+                obs[row * ACTOR_OBS_DIM..(row + 1) * ACTOR_OBS_DIM].copy_from_slice(&world.obs[i]);
+                critic[row * CRITIC_OBS_DIM..(row + 1) * CRITIC_OBS_DIM]
+                    .copy_from_slice(&world.critic[i]);
+            }
+        }
+    }
+}
+
+/// Both units' actor and critic observations of a world.
+fn observe(
+    task: &PhaseTask,
+    scene: &SceneModel,
+    env: &Env,
+    state: &EnvState,
+    world: &mut World,
+) -> Result<(), SimError> {
+    for i in 0..UNITS {
+        world.episode.observe(task, scene, i, &mut world.obs[i])?;
+        world
+            .episode
+            .observe_critic(task, scene, env, state, i, &mut world.critic[i])?;
+    }
+    Ok(())
+}
+
+impl VecEnv for PhaseVecEnv {
+    fn num_envs(&self) -> usize {
+        self.worlds.len() * UNITS
+    }
+
+    fn obs_dim(&self) -> usize {
+        ACTOR_OBS_DIM
+    }
+
+    fn critic_obs_dim(&self) -> usize {
+        CRITIC_OBS_DIM
+    }
+
+    fn action_dim(&self) -> usize {
+        UNIT_ACTION_DIM
+    }
+
+    fn action_scale(&self) -> Vec<f64> {
+        self.task.action_scale().to_vec()
+    }
+
+    fn action_offset(&self) -> Vec<f64> {
+        self.task.action_offset().to_vec()
+    }
+
+    fn reset(
+        &mut self,
+        seed: u64,
+        obs: &mut [f64],
+        critic_obs: &mut [f64],
+    ) -> Result<(), LearnError> {
+        check_len("reset observations", obs, self.num_envs() * ACTOR_OBS_DIM)?;
+        check_len(
+            "reset critic observations",
+            critic_obs,
+            self.num_envs() * CRITIC_OBS_DIM,
+        )?;
+        self.batch.reseed(seed)?;
+        self.begin_all(seed)?;
+        self.write_rows(obs, critic_obs);
+        Ok(())
+    }
+
+    fn reset_env(
+        &mut self,
+        index: usize,
+        obs: &mut [f64],
+        critic_obs: &mut [f64],
+    ) -> Result<(), LearnError> {
+        check_len("reset observation", obs, ACTOR_OBS_DIM)?;
+        check_len("reset critic observation", critic_obs, CRITIC_OBS_DIM)?;
+        let w = index / UNITS;
+        if w >= self.worlds.len() {
+            return Err(LearnError::Shape {
+                what: "env index",
+                expected: self.num_envs(),
+                found: index,
+            });
+        }
+        // A world holds both units: resetting one row restarts its world, and the other row
+        // sees the new episode at the next step.
+        let task = &self.task;
+        let mut mask = vec![false; self.worlds.len()];
+        mask[w] = true;
+        self.batch.reset(&mask)?;
+        let scene = self.batch.scene();
+        let (env, state) = (&self.batch.envs()[w], &self.batch.states()[w]);
+        let world = &mut self.worlds[w];
+        world.episode = task.begin(scene, env, state, &mut world.rng)?;
+        observe(task, scene, env, state, world)?;
+        let i = index % UNITS;
+        obs.copy_from_slice(&world.obs[i]);
+        critic_obs.copy_from_slice(&world.critic[i]);
+        Ok(())
+    }
+
+    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
+        let rows = self.num_envs();
+        check_len("actions", actions, rows * UNIT_ACTION_DIM)?;
+        for (w, world) in self.worlds.iter_mut().enumerate() {
+            for i in 0..UNITS {
+                let row = w * UNITS + i;
+                world.commands[i] = self
+                    .task
+                    .command(&actions[row * UNIT_ACTION_DIM..(row + 1) * UNIT_ACTION_DIM]);
+            }
+        }
+        let (task, reward, gamma) = (&self.task, &self.reward, self.gamma);
+        self.batch
+            .for_each_with(&mut self.worlds, |scene, env, state, world| {
+                env.step(scene, &world.commands);
+                env.state_into(scene, state);
+                world.outcome = world
+                    .episode
+                    .advance(task, scene, env, state, &mut world.rng);
+                let r = if world.outcome.terminated
+                    == Some(moonhaul_sim::task::Termination::NonFinite)
+                {
+                    // A diverged world has no meaningful reward; the last finite one stands.
+                    world.reward
+                } else {
+                    phase_reward(reward, task, scene, env, &world.episode, state)
+                };
+                world.reward = if world.outcome.terminated.is_some() {
+                    let left = task.max_steps().saturating_sub(world.episode.steps()) as i32;
+                    r * (1.0 - gamma.powi(left.max(1))) / (1.0 - gamma)
+                } else {
+                    r
+                };
+                if world.outcome.terminated.is_some() || world.outcome.truncated {
+                    if world.outcome.terminated != Some(moonhaul_sim::task::Termination::NonFinite)
+                    {
+                        observe(task, scene, env, state, world)?;
+                    }
+                    world.final_obs = world.obs;
+                    world.final_critic = world.critic;
+                    env.reset(scene)?;
+                    env.state_into(scene, state);
+                    world.episode = task.begin(scene, env, state, &mut world.rng)?;
+                }
+                observe(task, scene, env, state, world)
+            })?;
+        self.write_rows(&mut out.obs, &mut out.critic_obs);
+        for (w, world) in self.worlds.iter().enumerate() {
+            let ended = world.outcome.terminated.is_some() || world.outcome.truncated;
+            for i in 0..UNITS {
+                let row = w * UNITS + i;
+                out.rewards[row] = world.reward;
+                out.terminated[row] = world.outcome.terminated.is_some();
+                out.truncated[row] = world.outcome.truncated;
+                if ended {
+                    out.final_obs[row * ACTOR_OBS_DIM..(row + 1) * ACTOR_OBS_DIM]
+                        .copy_from_slice(&world.final_obs[i]);
+                    out.final_critic_obs[row * CRITIC_OBS_DIM..(row + 1) * CRITIC_OBS_DIM]
+                        .copy_from_slice(&world.final_critic[i]);
+                }
+            }
+        }
+        Ok(())
+    }
+}
