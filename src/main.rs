@@ -12,6 +12,8 @@ macro_rules! outln {
 }
 
 mod can_cmd;
+mod eval;
+mod eval_cmd;
 mod policy_cmd;
 mod sim_cmd;
 mod urdf_cmd;
@@ -45,6 +47,9 @@ enum Command {
     /// Simulator tools: run the scripted lift-transport-place mission (CSV + PNG), benchmark.
     #[command(subcommand)]
     Sim(sim_cmd::SimCommand),
+    /// Evaluate the phase policies against the paper's simulation results, beside the scripted
+    /// IK controller: seeded, randomized episodes of every case and payload.
+    Eval(eval_cmd::EvalArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -54,6 +59,7 @@ fn main() -> std::process::ExitCode {
         Command::Policy(cmd) => policy_cmd::run(cmd),
         Command::Can(cmd) => can_cmd::run(cmd),
         Command::Sim(cmd) => sim_cmd::run(cmd),
+        Command::Eval(args) => eval_cmd::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

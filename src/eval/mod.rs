@@ -1,0 +1,8 @@
+//! Data side of `moonhaul eval`: one evaluation episode as a CSV of samples ([`episode`]) and
+//! the paper's per-phase simulation metrics computed from those samples ([`metrics`]). Both
+//! are pure functions of the rows, so anyone can recompute the reported figures from the CSVs;
+//! [`rollout`] produces the rows by running policies and the scripted baseline in the simulator.
+
+pub mod episode;
+pub mod metrics;
+pub mod rollout;
