@@ -3,6 +3,7 @@
 //! - `cargo xtask demo`  — the main job.
 //! - `cargo xtask test`  — every test in the workspace.
 //! - `cargo xtask setup` — only the set-up both of them do first.
+//! - `cargo xtask train-all` — retrain the bundled phase policies from scratch.
 //! - `cargo xtask cargo ARGS…` — any cargo command with libtorch configured (clippy, bench, run).
 //!
 //! Set-up means libtorch for `moonhaul-learn`: PyTorch from PyPI (the exact version `tch`
@@ -26,6 +27,9 @@ const USAGE: &str = "usage: cargo xtask <demo|test|setup|cargo ARGS...>
                 two wheel-arm units, and bring up a unit's CAN drives (emulated); see runs/demo/
   test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
   setup         only install libtorch (PyTorch from PyPI) into the project venv
+  train-all     retrain the bundled policies from scratch: lift, transport and place with
+                configs/train/<phase>.toml into runs/<phase>/, then copy each policy and
+                its training curve to assets/policies/
   cargo ARGS    run any cargo command with libtorch configured, e.g.
                 `cargo xtask cargo clippy --workspace --all-targets -- -D warnings`";
 
@@ -35,6 +39,7 @@ fn main() -> ExitCode {
         Some("demo") => demo(),
         Some("test") => test(&args[1..]),
         Some("setup") => setup().map(|_| ()),
+        Some("train-all") => train_all(),
         Some("cargo") => setup().and_then(|venv| cargo(&venv, &args[1..])),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
@@ -171,6 +176,57 @@ fn demo() -> Result<(), String> {
     eprintln!(
         "xtask: mission CSV and plot in {out}/ (demo.csv, demo.png), CAN traffic in {can_log}"
     );
+    Ok(())
+}
+
+/// The phases whose policies are bundled in `assets/policies/`.
+const PHASES: [&str; 3] = ["lift", "transport", "place"];
+
+/// Trains every phase policy from its config, one after another (each uses every core), and
+/// bundles the results: `assets/policies/<phase>.safetensors` (with its provenance in the
+/// metadata) and `<phase>.metrics.csv` (its training curve, for `moonhaul eval`'s plots).
+fn train_all() -> Result<(), String> {
+    let venv = setup()?;
+    let root = workspace_root();
+    run(cargo_command(&venv).args([
+        "build",
+        "--release",
+        "--package",
+        "moonhaul-learn",
+        "--bin",
+        "moonhaul-train",
+    ]))?;
+    let assets = root.join("assets").join("policies");
+    std::fs::create_dir_all(&assets)
+        .map_err(|e| format!("cannot create {}: {e}", assets.display()))?;
+    for phase in PHASES {
+        let out = root.join("runs").join(phase);
+        let config = format!("configs/train/{phase}.toml");
+        let out_arg = out.to_string_lossy().into_owned();
+        run(cargo_command(&venv).args([
+            "run",
+            "--quiet",
+            "--release",
+            "--package",
+            "moonhaul-learn",
+            "--bin",
+            "moonhaul-train",
+            "--",
+            "--config",
+            &config,
+            "--out",
+            &out_arg,
+        ]))?;
+        for (from, to) in [
+            ("policy.safetensors", format!("{phase}.safetensors")),
+            ("metrics.csv", format!("{phase}.metrics.csv")),
+        ] {
+            let (from, to) = (out.join(from), assets.join(to));
+            std::fs::copy(&from, &to)
+                .map_err(|e| format!("cannot copy {} to {}: {e}", from.display(), to.display()))?;
+        }
+        eprintln!("xtask: {phase} policy bundled in {}", assets.display());
+    }
     Ok(())
 }
 
