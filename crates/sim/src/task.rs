@@ -480,6 +480,13 @@ impl Episode {
         self.steps
     }
 
+    /// The same episode aiming at h* = `height_m` instead of its drawn goal (evaluation at the
+    /// paper's fixed lift targets).
+    pub fn with_goal_height(mut self, height_m: f64) -> Self {
+        self.goal_height_m = height_m;
+        self
+    }
+
     /// h*, m.
     pub fn goal_height_m(&self) -> f64 {
         self.goal_height_m
