@@ -183,8 +183,9 @@ fn demo() -> Result<(), String> {
 const PHASES: [&str; 3] = ["lift", "transport", "place"];
 
 /// Trains every phase policy from its config, one after another (each uses every core), and
-/// bundles the results: `assets/policies/<phase>.safetensors` (with its provenance in the
-/// metadata) and `<phase>.metrics.csv` (its training curve, for `moonhaul eval`'s plots).
+/// bundles the results: `assets/policies/<phase>.safetensors`, the run's best evaluated
+/// checkpoint (with its provenance in the metadata), and `<phase>.metrics.csv` (its training
+/// curve, for `moonhaul eval`'s plots).
 fn train_all() -> Result<(), String> {
     let venv = setup()?;
     let root = workspace_root();
@@ -203,22 +204,29 @@ fn train_all() -> Result<(), String> {
         let out = root.join("runs").join(phase);
         let config = format!("configs/train/{phase}.toml");
         let out_arg = out.to_string_lossy().into_owned();
-        run(cargo_command(&venv).args([
-            "run",
-            "--quiet",
-            "--release",
-            "--package",
-            "moonhaul-learn",
-            "--bin",
-            "moonhaul-train",
-            "--",
-            "--config",
-            &config,
-            "--out",
-            &out_arg,
-        ]))?;
+        let train = |extra: &[&str]| {
+            let mut args = vec![
+                "run",
+                "--quiet",
+                "--release",
+                "--package",
+                "moonhaul-learn",
+                "--bin",
+                "moonhaul-train",
+                "--",
+                "--config",
+                &config,
+                "--out",
+                &out_arg,
+            ];
+            args.extend_from_slice(extra);
+            run(cargo_command(&venv).args(args))
+        };
+        train(&[])?;
+        // PPO's last iterate is not always its best: bundle the best evaluated checkpoint.
+        train(&["--export-best"])?;
         for (from, to) in [
-            ("policy.safetensors", format!("{phase}.safetensors")),
+            ("best_policy.safetensors", format!("{phase}.safetensors")),
             ("metrics.csv", format!("{phase}.metrics.csv")),
         ] {
             let (from, to) = (out.join(from), assets.join(to));

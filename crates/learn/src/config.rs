@@ -67,6 +67,8 @@ pub enum Task {
     Lift,
     Transport,
     Place,
+    /// The monolithic baseline: one policy for the whole mission ([`moonhaul_sim::task`]).
+    Mission,
 }
 
 impl Task {
@@ -76,6 +78,7 @@ impl Task {
             Task::Lift => "lift",
             Task::Transport => "transport",
             Task::Place => "place",
+            Task::Mission => "mission",
         }
     }
 }

@@ -155,7 +155,8 @@ impl MetricsLog {
     }
 }
 
-fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, LearnError> {
+/// Every row of a run's `metrics.csv`.
+pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, LearnError> {
     let bad = |line: usize, reason: String| LearnError::Metrics {
         path: path.to_path_buf(),
         line,

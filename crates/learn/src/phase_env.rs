@@ -66,7 +66,7 @@ pub fn phase_reward(
         position_m: [p_ref.x, p_ref.y],
         velocity_mps: [v_cmd.x, v_cmd.y],
     };
-    match task.phase {
+    match episode.phase() {
         Phase::Lift | Phase::Idle => {
             let mass_kg = scene.payloads[&env.payload_kind()].model.bodies[0]
                 .inertia
@@ -91,10 +91,10 @@ pub struct PhaseVecEnv {
 }
 
 impl PhaseVecEnv {
-    /// `worlds` simulated worlds (2 rows each) of `phase` on `threads` simulator threads,
-    /// with domain randomization on.
+    /// `worlds` simulated worlds (2 rows each) of `phase` (`None`: the monolithic baseline's
+    /// whole mission) on `threads` simulator threads, with domain randomization on.
     pub fn new(
-        phase: Phase,
+        phase: Option<Phase>,
         sim: SimConfig,
         tasks: TaskConfig,
         reward: RewardConfig,
@@ -103,7 +103,10 @@ impl PhaseVecEnv {
         threads: usize,
     ) -> Result<Self, LearnError> {
         let scene = SceneModel::new(sim)?;
-        let task = PhaseTask::new(phase, tasks, &scene)?;
+        let task = match phase {
+            Some(phase) => PhaseTask::new(phase, tasks, &scene)?,
+            None => PhaseTask::mission(tasks, &scene)?,
+        };
         let options = task.env_options(true, None);
         let batch = BatchEnv::new(scene, worlds, 0, options, threads)?;
         let mut env = PhaseVecEnv {

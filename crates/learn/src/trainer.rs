@@ -9,10 +9,13 @@
 //! <run>/policy.safetensors                  the actor as an onboard policy file
 //! ```
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
+
+use moonhaul_core::policy::Policy;
 
 use crate::actor_critic::ActorCritic;
 use crate::checkpoint::{self, write_atomic};
@@ -114,6 +117,103 @@ fn rollout_size(config: &TrainConfig, rows: usize, width: usize) -> Result<i64, 
         })
 }
 
+/// What every exported policy records about where it came from.
+fn provenance_extra(
+    config: &TrainConfig,
+    commit: String,
+    progress: Progress,
+    eval_return: Option<f64>,
+) -> Result<BTreeMap<String, String>, LearnError> {
+    let (_, mut extra) = export_identity(config.run.task);
+    extra.insert("created_by".into(), "moonhaul-train".into());
+    extra.insert("train_run".into(), config.run.name.clone());
+    extra.insert("seed".into(), config.run.seed.to_string());
+    extra.insert("iteration".into(), progress.iteration.to_string());
+    extra.insert("env_steps".into(), progress.env_steps.to_string());
+    if let Some(r) = eval_return {
+        extra.insert("eval_return".into(), r.to_string());
+    }
+    extra.insert("commit".into(), commit);
+    extra.insert("config_sha256".into(), provenance::config_digest(config)?);
+    Ok(extra)
+}
+
+/// The policy of a finished run's best evaluated checkpoint.
+#[derive(Debug, Clone)]
+pub struct BestExport {
+    pub policy: PathBuf,
+    pub iteration: usize,
+    pub eval_return: f64,
+}
+
+/// Exports the checkpoint with the highest deterministic evaluation return of the run in
+/// `run_dir` (trained with `config`) as `<run>/best_policy.safetensors`. PPO's last iterate
+/// is not its best when training oscillates; the evaluation episodes are the same every time,
+/// so their return ranks checkpoints fairly. Records the source commit of the run's own
+/// `policy.safetensors` and `train_compute_s`: rollout and update time up to that iteration
+/// (from `metrics.csv`, evaluations excluded).
+pub fn export_best(config: &TrainConfig, run_dir: &Path) -> Result<BestExport, LearnError> {
+    let rows = crate::metrics::read_rows(&run_dir.join("metrics.csv"))?;
+    let best = rows
+        .iter()
+        .filter_map(|r| r.eval_return.map(|e| (r, e)))
+        .filter(|(r, _)| checkpoint_path(run_dir, r.iteration).is_file())
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .ok_or_else(|| LearnError::Checkpoint {
+            path: run_dir.join("checkpoints"),
+            reason: "no evaluated iteration has a checkpoint".into(),
+        })?;
+    let (row, eval_return) = (*best.0, best.1);
+    let env = make_env(config, 1)?;
+    let policy = ActorCritic::new(
+        env.obs_dim(),
+        env.critic_obs_dim(),
+        env.action_dim(),
+        &config.policy,
+    );
+    let mut ppo = Ppo::new(
+        policy,
+        config.ppo.clone(),
+        config.env.steps_per_env,
+        env.num_envs(),
+    );
+    let ckpt = checkpoint_path(run_dir, row.iteration);
+    let progress = checkpoint::load(&ckpt, &mut ppo, config.run.task)?;
+    let last = Policy::from_file(run_dir.join("policy.safetensors")).ok();
+    let commit = last
+        .and_then(|p| p.metadata().extra.get("commit").cloned())
+        .unwrap_or_else(provenance::commit);
+    let mut extra = provenance_extra(config, commit, progress, Some(eval_return))?;
+    let (mut compute_s, mut previous) = (0.0, 0);
+    for r in &rows {
+        let samples = r.env_steps.saturating_sub(previous);
+        previous = r.env_steps;
+        if r.iteration <= row.iteration && r.steps_per_s > 0.0 {
+            compute_s += samples as f64 / r.steps_per_s;
+        }
+    }
+    extra.insert("train_compute_s".into(), format!("{compute_s:.0}"));
+    extra.insert(
+        "selected".into(),
+        "best evaluation return of the run".into(),
+    );
+    let (phase, _) = export_identity(config.run.task);
+    let exported = export_policy(
+        ppo.policy(),
+        phase,
+        &env.action_scale(),
+        &env.action_offset(),
+        extra,
+    )?;
+    let path = run_dir.join("best_policy.safetensors");
+    exported.write_file(&path)?;
+    Ok(BestExport {
+        policy: path,
+        iteration: row.iteration,
+        eval_return,
+    })
+}
+
 pub fn checkpoint_path(run_dir: &Path, iteration: usize) -> PathBuf {
     run_dir
         .join("checkpoints")
@@ -127,6 +227,8 @@ pub fn train(
     mut on_iteration: impl FnMut(&MetricsRow),
 ) -> Result<TrainSummary, LearnError> {
     let start = Instant::now();
+    // The source the run starts from, before anyone edits the tree during a long run.
+    let commit = provenance::commit();
     let dir = &options.run_dir;
     // Before anything is allocated from it or written: the rollout batch must be countable.
     rollout_size(config, config.env.num_envs, 1)?;
@@ -207,15 +309,7 @@ pub fn train(
     };
     plot_curves(dir, metrics.rows())?;
 
-    let (phase, mut extra) = export_identity(task);
-    extra.insert("created_by".into(), "moonhaul-train".into());
-    extra.insert("train_run".into(), config.run.name.clone());
-    extra.insert("seed".into(), config.run.seed.to_string());
-    extra.insert("iteration".into(), progress.iteration.to_string());
-    extra.insert("env_steps".into(), progress.env_steps.to_string());
-    if let Some(r) = eval_return {
-        extra.insert("eval_return".into(), r.to_string());
-    }
+    let mut extra = provenance_extra(config, commit, progress, eval_return)?;
     if let Some(last) = metrics.rows().last() {
         if let Some(r) = last.mean_return {
             extra.insert("final_mean_return".into(), r.to_string());
@@ -224,13 +318,12 @@ pub fn train(
             extra.insert("final_mean_episode_length".into(), l.to_string());
         }
     }
-    extra.insert("commit".into(), provenance::commit());
-    extra.insert("config_sha256".into(), provenance::config_digest(config)?);
     // This session's wall time; a resumed run's earlier sessions are in its metrics.csv.
     extra.insert(
         "wall_s".into(),
         format!("{:.0}", start.elapsed().as_secs_f64()),
     );
+    let (phase, _) = export_identity(task);
     let env = runner.env();
     let exported = export_policy(
         runner.ppo().policy(),

@@ -129,3 +129,37 @@ fn stop_flag_ends_after_the_iteration_and_keeps_its_checkpoint() {
     assert!(summary.last_checkpoint.is_file() && summary.policy.is_file());
     assert_eq!(rows(&run).len(), 1);
 }
+
+#[test]
+fn the_best_evaluated_checkpoint_is_exported_with_its_provenance() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let config = tiny_config();
+    let options = TrainOptions {
+        run_dir: run.clone(),
+        resume: None,
+        stop: Arc::new(AtomicBool::new(false)),
+    };
+    train(&config, &options, |_| {}).unwrap();
+    let evaluated: Vec<(usize, f64)> = rows(&run)
+        .iter()
+        .filter_map(|r| r.eval_return.map(|e| (r.iteration, e)))
+        .collect();
+    let (iteration, eval_return) = evaluated
+        .iter()
+        .copied()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+    let best = moonhaul_learn::trainer::export_best(&config, &run).unwrap();
+    assert_eq!((best.iteration, best.eval_return), (iteration, eval_return));
+    let policy = Policy::from_file(&best.policy).unwrap();
+    let extra = &policy.metadata().extra;
+    assert_eq!(extra["iteration"], iteration.to_string());
+    assert_eq!(extra["selected"], "best evaluation return of the run");
+    for key in ["commit", "config_sha256", "train_compute_s", "env_steps"] {
+        assert!(extra.contains_key(key), "{key}: {extra:?}");
+    }
+    // A run without a checkpoint of any evaluated iteration has nothing to export.
+    std::fs::remove_dir_all(run.join("checkpoints")).unwrap();
+    assert!(moonhaul_learn::trainer::export_best(&config, &run).is_err());
+}

@@ -109,6 +109,15 @@ pub struct PlaceTask {
     pub release_after_contact_s: f64,
 }
 
+/// The monolithic baseline's mission: lift, transport and place as one episode.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MissionTask {
+    /// The payload height at which the reward switches from lift to transport, m (the gate's
+    /// h_min).
+    pub lift_done_height_m: f64,
+}
+
 /// `configs/tasks.toml`: every phase task's settings (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -119,6 +128,7 @@ pub struct TaskConfig {
     pub lift: LiftTask,
     pub transport: TransportTask,
     pub place: PlaceTask,
+    pub mission: MissionTask,
 }
 
 /// Longest phase episode, s.
@@ -309,7 +319,12 @@ pub struct StepOutcome {
 /// One phase task: its settings and action map; shared by all worlds.
 #[derive(Debug, Clone)]
 pub struct PhaseTask {
+    /// The phase an episode starts in (lift for the mission).
     pub phase: Phase,
+    /// The monolithic baseline: the whole mission as one episode, the reward following its
+    /// progress (lift until the payload is `mission.lift_done_height_m` up, transport until
+    /// the velocity profile ends, then place), the policy never told the phase.
+    pub mission: bool,
     pub config: TaskConfig,
     action_scale: [f64; UNIT_ACTION_DIM],
     action_offset: [f64; UNIT_ACTION_DIM],
@@ -342,12 +357,25 @@ impl PhaseTask {
         let control_period_s = 1.0 / scene.config.control_hz;
         Ok(PhaseTask {
             phase,
+            mission: false,
             action_scale: scale,
             action_offset: offset,
             max_steps: (config.duration_s(phase) / control_period_s).round() as u64,
             control_period_s,
             config,
         })
+    }
+
+    /// The monolithic baseline's task: the whole mission, lift + transport + place long.
+    pub fn mission(config: TaskConfig, scene: &SceneModel) -> Result<Self, SimError> {
+        let mut task = Self::new(Phase::Lift, config, scene)?;
+        let total_s: f64 = [Phase::Lift, Phase::Transport, Phase::Place]
+            .iter()
+            .map(|&p| config.duration_s(p))
+            .sum();
+        task.mission = true;
+        task.max_steps = (total_s / task.control_period_s).round() as u64;
+        Ok(task)
     }
 
     pub fn action_scale(&self) -> &[f64; UNIT_ACTION_DIM] {
@@ -397,6 +425,8 @@ impl PhaseTask {
     ) -> Result<Episode, SimError> {
         let c = &self.config;
         let goal_height_m = match self.phase {
+            // The mission lifts to the transport height and never says it is placing.
+            Phase::Lift if self.mission => c.transport.start_height_m,
             Phase::Lift => {
                 let [lo, hi] = c.lift.goal_height_m;
                 if hi > lo {
@@ -416,6 +446,8 @@ impl PhaseTask {
         let start_base = state.units.map(|u| u.state.base_pose);
         let payload_start = state.payload.pose.translation.vector.xy();
         let mut episode = Episode {
+            phase: self.phase,
+            phase_start_step: 0,
             goal_height_m,
             place_offset_m,
             start_base,
@@ -455,6 +487,9 @@ impl PhaseTask {
 /// One world's episode in progress.
 #[derive(Debug, Clone)]
 pub struct Episode {
+    /// The phase whose reward applies now (the task's, or the mission's progress).
+    phase: Phase,
+    phase_start_step: u64,
     goal_height_m: f64,
     place_offset_m: f64,
     start_base: [PlanarPose; UNITS],
@@ -473,6 +508,27 @@ impl Episode {
     /// Time since the episode began, s.
     pub fn time_s(&self, task: &PhaseTask) -> f64 {
         self.steps as f64 * task.control_period_s
+    }
+
+    /// The phase whose reward applies now.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Time since the current phase began, s.
+    fn phase_time_s(&self, task: &PhaseTask) -> f64 {
+        (self.steps - self.phase_start_step) as f64 * task.control_period_s
+    }
+
+    /// How far the payload goes along X in this episode, m.
+    fn travel_m(&self, task: &PhaseTask) -> f64 {
+        if task.mission || task.phase == Phase::Transport {
+            task.config.transport.distance_m
+        } else if task.phase == Phase::Place {
+            self.place_offset_m
+        } else {
+            0.0
+        }
     }
 
     /// Control steps since the episode began.
@@ -498,9 +554,9 @@ impl Episode {
 
     /// The payload's planar reference position now (the reward's p_B), world frame.
     pub fn reference_position_m(&self, task: &PhaseTask) -> Vector2<f64> {
-        let along = match task.phase {
-            Phase::Transport => task.config.profile().travelled_at(self.time_s(task)),
-            Phase::Place => self.place_offset_m,
+        let along = match self.phase {
+            Phase::Transport => task.config.profile().travelled_at(self.phase_time_s(task)),
+            Phase::Place => self.travel_m(task),
             Phase::Lift | Phase::Idle => 0.0,
         };
         self.payload_start + Vector2::new(along, 0.0)
@@ -508,9 +564,9 @@ impl Episode {
 
     /// The commanded payload velocity now (v_cmd), world frame.
     pub fn command_velocity_mps(&self, task: &PhaseTask) -> Vector2<f64> {
-        match task.phase {
+        match self.phase {
             Phase::Transport => {
-                Vector2::new(task.config.profile().speed_at(self.time_s(task)), 0.0)
+                Vector2::new(task.config.profile().speed_at(self.phase_time_s(task)), 0.0)
             }
             _ => Vector2::zeros(),
         }
@@ -519,11 +575,7 @@ impl Episode {
     /// Unit `i`'s phase goal in the world frame.
     pub fn goal(&self, task: &PhaseTask, i: usize) -> PhaseGoal {
         let start = &self.start_base[i];
-        let total = match task.phase {
-            Phase::Transport => task.config.transport.distance_m,
-            Phase::Place => self.place_offset_m,
-            Phase::Lift | Phase::Idle => 0.0,
-        };
+        let total = self.travel_m(task);
         PhaseGoal {
             height_m: self.goal_height_m,
             base_goal_m: Vector2::new(start.x_m + total, start.y_m),
@@ -682,7 +734,24 @@ impl Episode {
             };
         }
         self.sense(task, scene, state, rng, true);
-        if task.phase == Phase::Place && !self.released {
+        if task.mission {
+            let next = match self.phase {
+                Phase::Lift if state.payload.height_m >= task.config.mission.lift_done_height_m => {
+                    Some(Phase::Transport)
+                }
+                Phase::Transport
+                    if self.phase_time_s(task) >= task.config.profile().duration_s() =>
+                {
+                    Some(Phase::Place)
+                }
+                _ => None,
+            };
+            if let Some(next) = next {
+                self.phase = next;
+                self.phase_start_step = self.steps;
+            }
+        }
+        if self.phase == Phase::Place && !self.released {
             if state.payload.ground_contact {
                 self.contact_s += task.control_period_s;
             }

@@ -3,6 +3,7 @@
 //! ```text
 //! moonhaul-train --config configs/train/pendulum.toml [--out DIR] [--seed N] [--resume CKPT]
 //!                [--time-limit-s S]
+//! moonhaul-train --config CONFIG [--out DIR] --export-best
 //! ```
 //!
 //! Ctrl-C stops after the current iteration and keeps a checkpoint of it; a second Ctrl-C
@@ -18,7 +19,7 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use moonhaul_core::input::{check_readable, MAX_CHECKPOINT_BYTES};
 use moonhaul_learn::config::TrainConfig;
-use moonhaul_learn::trainer::{default_run_dir, train, TrainOptions};
+use moonhaul_learn::trainer::{default_run_dir, export_best, train, TrainOptions};
 
 /// A `--resume` checkpoint must be a regular file of sane size (not a folder, FIFO or device,
 /// which would block or exhaust memory when read); returns its run folder,
@@ -73,6 +74,10 @@ struct Args {
     /// checkpoint and exporting the policy).
     #[arg(long)]
     time_limit_s: Option<f64>,
+    /// Train nothing: export the best evaluated checkpoint of the finished run in --out (or
+    /// runs/<run.name>) as best_policy.safetensors.
+    #[arg(long, conflicts_with_all = ["resume", "time_limit_s"])]
+    export_best: bool,
 }
 
 fn main() -> Result<()> {
@@ -92,6 +97,20 @@ fn main() -> Result<()> {
         (None, None) => default_run_dir(&config.run.name)
             .with_context(|| format!("training config {}", args.config.display()))?,
     };
+
+    if args.export_best {
+        let best = export_best(&config, &run_dir)
+            .with_context(|| format!("exporting the best checkpoint of {}", run_dir.display()))?;
+        writeln!(
+            std::io::stdout().lock(),
+            "best evaluation: iteration {}, return {:.1}\npolicy     {}",
+            best.iteration,
+            best.eval_return,
+            best.policy.display()
+        )
+        .context("cannot write to stdout")?;
+        return Ok(());
+    }
 
     let stop = Arc::new(AtomicBool::new(false));
     let handler_flag = Arc::clone(&stop);
