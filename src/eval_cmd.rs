@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use moonhaul_coord::{GateConfig, SyncConfig};
 use moonhaul_core::state::Phase;
 use moonhaul_sim::scripted::MissionPlan;
 use moonhaul_sim::task::{PhaseTask, TaskConfig};
@@ -15,7 +16,9 @@ use serde_json::{json, Map, Value};
 
 use crate::eval::episode::{read_csv, write_csv, EpisodeRow};
 use crate::eval::metrics::{self, lift_summary, place_summary, transport_summary};
+use crate::eval::plot;
 use crate::eval::rollout::{self, Case, Episodes, ScriptedSegments};
+use moonhaul_core::atomic_file;
 
 #[derive(clap::Args)]
 pub struct EvalArgs {
@@ -25,6 +28,14 @@ pub struct EvalArgs {
     /// Payloads to evaluate (box, bricks, sledge), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "box,bricks,sledge")]
     payload: Vec<PayloadKind>,
+    /// Cases to run (lift-0.3, lift-0.5, lift-0.75, transport, place), comma-separated; only
+    /// the policies they need are loaded.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "lift-0.3,lift-0.5,lift-0.75,transport,place"
+    )]
+    cases: Vec<String>,
     /// Seeded episodes per case and payload, 1 to 10000.
     #[arg(long, default_value_t = 100)]
     episodes: usize,
@@ -38,6 +49,14 @@ pub struct EvalArgs {
     /// Skip the scripted-controller baseline.
     #[arg(long)]
     no_scripted: bool,
+    /// Skip the deployed stack (whole missions with the phase gate and the synchronization
+    /// clamp in the loop; run when every case is).
+    #[arg(long)]
+    no_deployed: bool,
+    #[arg(long, default_value = "configs/gate.toml")]
+    gate: PathBuf,
+    #[arg(long, default_value = "configs/sync.toml")]
+    sync: PathBuf,
     /// Write every episode's rows to DIR/<payload>/<case>/<episode>.csv (scripted ones under
     /// DIR/scripted/).
     #[arg(long, value_name = "DIR")]
@@ -193,18 +212,41 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let plan = MissionPlan::load(&args.mission)?;
     let scene = SceneModel::new(sim).context("building the scene")?;
     let randomize = !args.no_randomization;
+    let mut cases = Vec::new();
+    for name in &args.cases {
+        match Case::ALL.iter().find(|c| c.name() == *name) {
+            Some(case) => cases.push(*case),
+            None => bail!(
+                "--cases {name:?}: unknown case (expected lift-0.3, lift-0.5, lift-0.75, \
+                 transport or place)"
+            ),
+        }
+    }
     let mut policies = Vec::new();
     for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
+        if !cases.iter().any(|c| c.phase == phase) {
+            continue;
+        }
         let path = args.policies.join(format!("{}.safetensors", phase.name()));
         let task = PhaseTask::new(phase, tasks, &scene)?;
         policies.push((phase, task, rollout::load_policy(&path, phase)?));
     }
 
+    let every_case = Case::ALL.iter().all(|c| cases.contains(c));
+    let stack = if args.no_deployed || !every_case {
+        None
+    } else {
+        Some((
+            GateConfig::from_file(&args.gate)?,
+            SyncConfig::from_file(&args.sync)?,
+        ))
+    };
     let mut report = Map::new();
     let mut table = String::new();
+    let mut rollouts: Vec<(Phase, Vec<EpisodeRow>)> = Vec::new();
     for &payload in &args.payload {
         let mut learned = Vec::new();
-        for case in Case::ALL {
+        for &case in &cases {
             let (_, task, policy) = policies
                 .iter()
                 .find(|(p, ..)| *p == case.phase)
@@ -213,17 +255,43 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 .with_context(|| format!("{} {}", payload.name(), case.name()))?;
             if let Some(out) = &args.out {
                 write_episodes(&out.join(payload.name()).join(case.name()), &episodes)?;
+                // The first payload's first episode of each phase's first case is its figure.
+                if !rollouts.iter().any(|(p, _)| *p == case.phase) {
+                    if let Some(rows) = episodes.first() {
+                        rollouts.push((case.phase, rows.clone()));
+                    }
+                }
             }
             learned.push((case, summarize(case, &episodes)?));
         }
         let scripted = if args.no_scripted {
             None
         } else {
-            Some(scripted_cases(&scene, &plan, payload, &args)?)
+            Some(scripted_cases(&scene, &plan, payload, &cases, &args)?)
+        };
+        let deployed = match &stack {
+            Some((gate, sync)) => {
+                let stack = rollout::Stack {
+                    gate,
+                    sync,
+                    phases: &policies,
+                };
+                Some(deployed_cases(&scene, &stack, payload, &args)?)
+            }
+            None => None,
         };
         let mut entry = payload_json(args.episodes, &learned);
-        if let (Some(scripted), Value::Object(map)) = (&scripted, &mut entry) {
-            map.insert("scripted".into(), payload_json(args.episodes, scripted));
+        if let Value::Object(map) = &mut entry {
+            if let Some(scripted) = &scripted {
+                map.insert("scripted".into(), payload_json(args.episodes, scripted));
+            }
+            if let Some((cases, clamp)) = &deployed {
+                let mut d = payload_json(args.episodes, cases);
+                if let Value::Object(d) = &mut d {
+                    d.insert("clamp".into(), clamp.clone());
+                }
+                map.insert("deployed".into(), d);
+            }
         }
         write_table(
             &mut table,
@@ -232,8 +300,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
             randomize,
             &learned,
             scripted.as_deref(),
+            deployed.as_ref().map(|(c, _)| c.as_slice()),
         )?;
         report.insert(payload.name().into(), entry);
+    }
+    if let Some(out) = &args.out {
+        write_figures(out, &args.policies, &rollouts)?;
     }
     if args.json {
         outln!("{}", Value::Object(report))?;
@@ -243,11 +315,102 @@ pub fn run(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
+/// `<out>/<phase>.png` for every phase evaluated (its training curve from
+/// `<policies>/<phase>.metrics.csv` where one is bundled, beside its rollout), and
+/// `<out>/training.png` (the phase policies' and the monolithic baseline's return and entropy
+/// curves) when `<policies>/mission.metrics.csv` is bundled.
+fn write_figures(out: &Path, policies: &Path, rollouts: &[(Phase, Vec<EpisodeRow>)]) -> Result<()> {
+    let curve = |name: &str| {
+        let path = policies.join(format!("{name}.metrics.csv"));
+        path.is_file().then(|| plot::read_curve(&path)).transpose()
+    };
+    for (phase, rows) in rollouts {
+        let path = out.join(format!("{}.png", phase.name()));
+        let points = curve(phase.name())?.unwrap_or_default();
+        atomic_file::write_with(
+            &path,
+            |temp| plot::phase_figure(temp, phase.name(), &points, rows),
+            |e| anyhow::Error::new(e).context(format!("writing {}", path.display())),
+        )?;
+    }
+    if let Some(mission) = curve("mission")? {
+        let mut runs = Vec::new();
+        for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
+            if let Some(points) = curve(phase.name())? {
+                runs.push((phase.name(), points));
+            }
+        }
+        runs.push(("monolithic baseline", mission));
+        let path = out.join("training.png");
+        atomic_file::write_with(
+            &path,
+            |temp| plot::comparison_figure(temp, &runs),
+            |e| anyhow::Error::new(e).context(format!("writing {}", path.display())),
+        )?;
+    }
+    Ok(())
+}
+
+/// The deployed stack: whole missions (lift to 0.3 m, transport, place) with the gate and the
+/// clamp in the loop; its segments as the cases, and what the clamp did.
+fn deployed_cases(
+    scene: &SceneModel,
+    stack: &rollout::Stack,
+    payload: PayloadKind,
+    args: &EvalArgs,
+) -> Result<(Vec<(Case, Value)>, Value)> {
+    let missions = rollout::deployed(scene, stack, args.episodes_of(payload))
+        .with_context(|| format!("deployed {}", payload.name()))?;
+    let mut cases = Vec::new();
+    for case in [Case::ALL[0], Case::ALL[3], Case::ALL[4]] {
+        let episodes: Vec<Vec<EpisodeRow>> = missions
+            .iter()
+            .map(|m| match case.phase {
+                Phase::Lift => m.segments.lift.clone(),
+                Phase::Transport => m.segments.transport.clone(),
+                _ => m.segments.place.clone(),
+            })
+            .collect();
+        if let Some(out) = &args.out {
+            write_episodes(
+                &out.join("deployed").join(payload.name()).join(case.name()),
+                &episodes,
+            )?;
+        }
+        // A mission that never reached a phase has no rows to judge it by: it failed it.
+        let reached: Vec<Vec<EpisodeRow>> = episodes
+            .into_iter()
+            .filter(|rows| !rows.is_empty())
+            .collect();
+        let mut summary = if reached.is_empty() {
+            json!({})
+        } else {
+            summarize(case, &reached)?
+        };
+        if let Value::Object(map) = &mut summary {
+            map.insert(
+                "reached_rate".into(),
+                json!(reached.len() as f64 / missions.len().max(1) as f64),
+            );
+        }
+        cases.push((case, summary));
+    }
+    let n = missions.len().max(1) as f64;
+    let clamp = json!({
+        "mean_t_max": missions.iter().map(|m| m.mean_t_max).sum::<f64>() / n,
+        "clamped_tick_fraction": missions.iter().map(|m| m.clamped_ticks as f64 / m.ticks.max(1) as f64).sum::<f64>() / n,
+        "hold_tick_fraction": missions.iter().map(|m| m.holds as f64 / m.ticks.max(1) as f64).sum::<f64>() / n,
+        "completed_rate": missions.iter().filter(|m| m.completed).count() as f64 / n,
+    });
+    Ok((cases, clamp))
+}
+
 /// The scripted baseline: one mission per lift height, its segments as the cases.
 fn scripted_cases(
     scene: &SceneModel,
     plan: &MissionPlan,
     payload: PayloadKind,
+    wanted: &[Case],
     args: &EvalArgs,
 ) -> Result<Vec<(Case, Value)>> {
     let mut cases = Vec::new();
@@ -255,6 +418,12 @@ fn scripted_cases(
         let Some(h) = case.goal_height_m else {
             continue;
         };
+        // The 0.3 m mission also yields the transport and place cases.
+        let needed = wanted.contains(&case)
+            || ((h - 0.3).abs() < 1e-9 && wanted.iter().any(|c| c.goal_height_m.is_none()));
+        if !needed {
+            continue;
+        }
         let missions = rollout::scripted(scene, plan, h, args.episodes_of(payload))
             .with_context(|| format!("scripted {} lift {h} m", payload.name()))?;
         let pick = |f: fn(&ScriptedSegments) -> &Vec<EpisodeRow>| {
@@ -271,6 +440,7 @@ fn scripted_cases(
                 segments.push((*phase_case, rows));
             }
         }
+        segments.retain(|(case, _)| wanted.contains(case));
         for (case, episodes) in segments {
             if let Some(out) = &args.out {
                 write_episodes(
@@ -295,6 +465,11 @@ fn cell(summary: Option<&Value>, metric: &str) -> String {
     }
 }
 
+/// The summary of `case` in a set of case summaries.
+fn find_case<'a>(set: Option<&'a [(Case, Value)]>, case: &Case) -> Option<&'a Value> {
+    set.and_then(|s| s.iter().find(|(c, _)| c == case).map(|(_, v)| v))
+}
+
 fn write_table(
     out: &mut String,
     payload: PayloadKind,
@@ -302,6 +477,7 @@ fn write_table(
     randomize: bool,
     learned: &[(Case, Value)],
     scripted: Option<&[(Case, Value)]>,
+    deployed: Option<&[(Case, Value)]>,
 ) -> Result<()> {
     let fmt = |e: std::fmt::Error| anyhow::anyhow!("formatting the table: {e}");
     writeln!(
@@ -317,13 +493,18 @@ fn write_table(
     .map_err(fmt)?;
     writeln!(
         out,
-        "{:<10} {:<24} {:>8}  {:>22}  {:>22}",
-        "case", "metric", "paper", "learned (mean ± sd)", "scripted IK (mean ± sd)"
+        "{:<10} {:<24} {:>8}  {:>22}  {:>22}  {:>22}",
+        "case",
+        "metric",
+        "paper",
+        "learned (mean ± sd)",
+        "scripted IK (mean ± sd)",
+        "gate+clamp (mean ± sd)"
     )
     .map_err(fmt)?;
     for (case, summary) in learned {
         let name = case.name();
-        let scripted = scripted.and_then(|s| s.iter().find(|(c, _)| c == case).map(|(_, v)| v));
+        let (scripted, deployed) = (find_case(scripted, case), find_case(deployed, case));
         let Value::Object(metrics) = summary else {
             continue;
         };
@@ -337,12 +518,13 @@ fn write_table(
             });
             writeln!(
                 out,
-                "{:<10} {:<24} {:>8}  {:>22}  {:>22}",
+                "{:<10} {:<24} {:>8}  {:>22}  {:>22}  {:>22}",
                 name,
                 metric,
                 paper,
                 cell(Some(summary), metric),
-                cell(scripted, metric)
+                cell(scripted, metric),
+                cell(deployed, metric)
             )
             .map_err(fmt)?;
         }

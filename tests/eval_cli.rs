@@ -84,7 +84,7 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
         "--no-scripted",
         "--json",
     ];
-    let reported: serde_json::Value =
+    let mut reported: serde_json::Value =
         serde_json::from_str(&stdout(&moonhaul(&[&args[..], &["--out", o]].concat()))).unwrap();
     let box_ = &reported["box"];
     assert_eq!(box_["episodes"], 2);
@@ -118,6 +118,16 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
         "box",
     ])))
     .unwrap();
+    // The deployed stack ran too (every case was asked for): a hold policy never lifts, so its
+    // missions stay in lift.
+    let deployed = reported["box"]
+        .as_object_mut()
+        .unwrap()
+        .remove("deployed")
+        .unwrap();
+    assert_eq!(deployed["transport"]["reached_rate"], 0.0);
+    assert!(deployed["clamp"]["mean_t_max"].as_f64().unwrap() <= 1.0);
+    assert!(out.join("deployed/box/lift-0.3/000.csv").is_file());
     assert_eq!(recomputed, reported);
 }
 

@@ -5,4 +5,5 @@
 
 pub mod episode;
 pub mod metrics;
+pub mod plot;
 pub mod rollout;

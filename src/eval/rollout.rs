@@ -270,3 +270,171 @@ pub fn scripted(
     })?;
     Ok(slots.into_iter().flatten().collect())
 }
+
+/// The deployed stack's settings: what each unit's daemon runs besides the policies.
+pub struct Stack<'a> {
+    pub gate: &'a moonhaul_coord::GateConfig,
+    pub sync: &'a moonhaul_coord::SyncConfig,
+    /// The phase tasks (lift, transport, place) and their policies.
+    pub phases: &'a [(Phase, PhaseTask, Policy)],
+}
+
+/// One deployed mission's rows, split by phase, and what the clamp did.
+pub struct DeployedMission {
+    pub segments: ScriptedSegments,
+    /// Ticks the clamp ran, and how many issued less than the policies' full step.
+    pub ticks: u64,
+    pub clamped_ticks: u64,
+    pub holds: u64,
+    /// Mean t_max over the mission.
+    pub mean_t_max: f64,
+    /// Whether the gate reached Idle (released) before the mission's time ran out.
+    pub completed: bool,
+}
+
+/// Seeded whole missions flown as the units fly them, in process: lift to 0.3 m, transport,
+/// place, each phase's policy switched by the phase gate (`configs/gate.toml`) and every
+/// command passed through the synchronization clamp (`configs/sync.toml`). The gate measures
+/// payload height as the units' mean FK estimate of the cargo's lift and the goal distance by
+/// odometry; the grasp forces are the simulator's wrench (the stand-in for a unit's
+/// current-based estimate). One world is one team: the distributed agreement over the network
+/// is the daemon's (it decides the same transitions when no message is lost).
+pub fn deployed(scene: &SceneModel, stack: &Stack, run: Episodes) -> Result<Vec<DeployedMission>> {
+    use moonhaul_coord::clamp::hold_command;
+    use moonhaul_coord::{Clamp, ClampInput, Measurements, PhaseGate, UnitModel};
+
+    let find = |phase: Phase| {
+        stack
+            .phases
+            .iter()
+            .find(|(p, ..)| *p == phase)
+            .with_context(|| format!("the deployed stack needs a {phase} policy"))
+    };
+    for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
+        find(phase)?;
+    }
+    let (_, lift_task, _) = find(Phase::Lift)?;
+    let period_s = 1.0 / scene.config.control_hz;
+    let budget_s: f64 = [Phase::Lift, Phase::Transport, Phase::Place]
+        .iter()
+        .map(|&p| lift_task.config.duration_s(p))
+        .sum();
+    let model = UnitModel::new(scene.spec.clone());
+    let options = lift_task.env_options(run.randomize, Some(run.payload));
+    let mut batch = BatchEnv::new(scene.clone(), run.count, run.seed, options, run.threads)?;
+    let mut work: Vec<(u64, Option<DeployedMission>)> = (0..run.count)
+        .map(|i| (moonhaul_sim::batch::env_seed(run.seed, i), None))
+        .collect();
+    batch.for_each_with(
+        &mut work,
+        |scene, env, state, (env_seed, slot)| -> Result<()> {
+            let mut rng = PhaseTask::rng(*env_seed);
+            let mut phase = Phase::Lift;
+            let mut episode = lift_task
+                .begin(scene, env, state, &mut rng)?
+                .with_goal_height(lift_task.config.transport.start_height_m);
+            let mut gate = PhaseGate::new(stack.gate);
+            let mut clamp = Clamp::new(model.clone(), stack.sync, period_s, UNITS)?;
+            let mut previous = [0, 1].map(|i| hold_command(episode.sensed(i)));
+            let mut scratch = find(Phase::Lift)?.2.scratch();
+            let mut segments = ScriptedSegments {
+                lift: Vec::new(),
+                transport: Vec::new(),
+                place: Vec::new(),
+            };
+            let (mut ticks, mut clamped, mut holds, mut t_sum) = (0u64, 0u64, 0u64, 0.0);
+            let mut completed = false;
+            let mut mission_s = 0.0;
+            let mut after_release_s = 0.0;
+            while mission_s < budget_s {
+                let (_, task, policy) = find(phase)?;
+                let mut obs = [[0.0; ACTOR_OBS_DIM]; UNITS];
+                let mut targets = [UnitCommand::default(); UNITS];
+                for i in 0..UNITS {
+                    episode.observe(task, scene, i, &mut obs[i])?;
+                    let mut u = [0.0; UNIT_ACTION_DIM];
+                    policy
+                        .act(&obs[i], &mut scratch, &mut u)
+                        .context("running the policy")?;
+                    targets[i] = UnitCommand::from_action(&u);
+                }
+                let sensed = [*episode.sensed(0), *episode.sensed(1)];
+                let mut issued = [UnitCommand::default(); UNITS];
+                let hold = completed.then_some(moonhaul_coord::HoldReason::Idle);
+                let report = clamp.step(
+                    &ClampInput {
+                        sensed: &sensed,
+                        previous: &previous,
+                        target: &targets,
+                    },
+                    hold,
+                    &mut issued,
+                )?;
+                ticks += 1;
+                t_sum += report.t_max;
+                clamped += u64::from(report.t_max < 1.0);
+                holds += u64::from(report.hold.is_some());
+                previous = issued;
+                env.step(scene, &issued);
+                env.state_into(scene, state);
+                let outcome = episode.advance(task, scene, env, state, &mut rng);
+                mission_s += period_s;
+                if !state.is_finite() {
+                    break;
+                }
+                let segment = match phase {
+                    Phase::Lift => &mut segments.lift,
+                    Phase::Transport => &mut segments.transport,
+                    Phase::Place | Phase::Idle => &mut segments.place,
+                };
+                let mut r = row(task, &episode, state);
+                if let Some(first) = segment.first() {
+                    r.t_s = first.t_s + (segment.len() as f64) * period_s;
+                }
+                segment.push(r);
+                if outcome.terminated.is_some() {
+                    break;
+                }
+                if completed {
+                    // A second of rest after the release, for the steady-state figures.
+                    after_release_s += period_s;
+                    if after_release_s >= 1.0 {
+                        break;
+                    }
+                    continue;
+                }
+                let mut after = [0.0; ACTOR_OBS_DIM];
+                let mut lift_estimate = 0.0;
+                for i in 0..UNITS {
+                    episode.observe(task, scene, i, &mut after)?;
+                    lift_estimate += after[18] / UNITS as f64;
+                }
+                episode.observe(task, scene, 0, &mut after)?;
+                let forces = state.units.map(|u| u.grasp.force_n);
+                let measured = Measurements {
+                    payload_height_m: lift_estimate,
+                    goal_distance_m: after[34].hypot(after[35]),
+                    grasp_force_n: &forces,
+                };
+                let next = gate.step(phase, &measured, false, false);
+                if next == Phase::Idle {
+                    completed = true;
+                } else if next != phase {
+                    phase = next;
+                    episode = find(next)?.1.continue_from(&episode, state);
+                    scratch = find(next)?.2.scratch();
+                }
+            }
+            *slot = Some(DeployedMission {
+                segments,
+                ticks,
+                clamped_ticks: clamped,
+                holds,
+                mean_t_max: if ticks > 0 { t_sum / ticks as f64 } else { 0.0 },
+                completed,
+            });
+            Ok(())
+        },
+    )?;
+    Ok(work.into_iter().filter_map(|(_, m)| m).collect())
+}

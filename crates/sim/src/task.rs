@@ -344,7 +344,7 @@ impl PhaseTask {
             });
         }
         let first = scene.config.randomization.payloads[0];
-        let payload = &scene.payloads[&first];
+        let payload = scene.payload(first)?;
         let envelope = payload.lift_envelope_rad();
         let start_q = payload.lift_q(config.start_lift_m(phase));
         let a = &config.action;
@@ -481,6 +481,32 @@ impl PhaseTask {
                     .map_err(|e| SimError::Kinematics(e.to_string()))?;
         }
         Ok(episode)
+    }
+}
+
+impl PhaseTask {
+    /// The episode of this task's phase that continues `previous` in a deployed mission when
+    /// the phase gate switches to it: the units keep their odometry, sensed readings and rest
+    /// grasp reference; the goals are set as this phase's training episodes set them, from the
+    /// units' own estimates (bases hold at, or travel from, where their odometry says they
+    /// are; h* is `transport.start_height_m` while lifting and transporting, 0 when placing).
+    pub fn continue_from(&self, previous: &Episode, state: &EnvState) -> Episode {
+        let goal_height_m = match self.phase {
+            Phase::Place | Phase::Idle => 0.0,
+            Phase::Lift | Phase::Transport => self.config.transport.start_height_m,
+        };
+        Episode {
+            phase: self.phase,
+            phase_start_step: 0,
+            goal_height_m,
+            place_offset_m: 0.0,
+            start_base: previous.odometry,
+            payload_start: state.payload.pose.translation.vector.xy(),
+            steps: 0,
+            contact_s: 0.0,
+            released: false,
+            ..previous.clone()
+        }
     }
 }
 
