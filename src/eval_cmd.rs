@@ -18,6 +18,7 @@ use crate::eval::episode::{read_csv, write_csv, EpisodeRow};
 use crate::eval::metrics::{self, lift_summary, place_summary, transport_summary};
 use crate::eval::plot;
 use crate::eval::rollout::{self, Case, Episodes, ScriptedSegments};
+use crate::payload_arg::{self, PayloadArg};
 use moonhaul_core::atomic_file;
 
 #[derive(clap::Args)]
@@ -25,9 +26,10 @@ pub struct EvalArgs {
     /// Folder holding lift.safetensors, transport.safetensors and place.safetensors.
     #[arg(long, default_value = "assets/policies")]
     policies: PathBuf,
-    /// Payloads to evaluate (box, bricks, sledge), comma-separated.
+    /// Payloads to evaluate (box, bricks, sledge, or payload URDF paths, which name their
+    /// outputs by file stem), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "box,bricks,sledge")]
-    payload: Vec<PayloadKind>,
+    payload: Vec<PayloadArg>,
     /// Cases to run (lift-0.3, lift-0.5, lift-0.75, transport, place), comma-separated; only
     /// the policies they need are loaded.
     #[arg(
@@ -182,17 +184,18 @@ fn read_episodes(dir: &Path) -> Result<Vec<Vec<EpisodeRow>>> {
 }
 
 /// `--recompute DIR`: the JSON report from the CSVs alone.
-fn recompute(dir: &Path, payloads: &[PayloadKind]) -> Result<()> {
+fn recompute(dir: &Path, payloads: &[PayloadArg]) -> Result<()> {
     let mut report = Map::new();
-    for &payload in payloads {
+    for payload in payloads {
+        let name = payload.name();
         let mut cases = Vec::new();
         let mut episodes = 0;
         for case in Case::ALL {
-            let rows = read_episodes(&dir.join(payload.name()).join(case.name()))?;
+            let rows = read_episodes(&dir.join(&name).join(case.name()))?;
             episodes = rows.len();
             cases.push((case, summarize(case, &rows)?));
         }
-        report.insert(payload.name().into(), payload_json(episodes, &cases));
+        report.insert(name, payload_json(episodes, &cases));
     }
     outln!("{}", Value::Object(report))
 }
@@ -210,7 +213,18 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let sim = SimConfig::load(&args.sim)?;
     let tasks = TaskConfig::load(&args.tasks)?;
     let plan = MissionPlan::load(&args.mission)?;
-    let scene = SceneModel::new(sim).context("building the scene")?;
+    let mut scene = SceneModel::new(sim).context("building the scene")?;
+    // Every payload file is loaded and grasp-solved before any episode runs, so a bad one
+    // fails at once; a scene holds one custom payload, so each file's model goes back in turn.
+    let mut payloads = Vec::new();
+    for arg in &args.payload {
+        let kind = payload_arg::resolve(&mut scene, arg)?;
+        let name = scene.payload_name(kind);
+        if payloads.iter().any(|(_, n, _)| *n == name) {
+            bail!("--payload: two payloads are named {name:?}; their outputs would collide");
+        }
+        payloads.push((kind, name, scene.payloads.get(&kind).cloned()));
+    }
     let randomize = !args.no_randomization;
     let mut cases = Vec::new();
     for name in &args.cases {
@@ -244,7 +258,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let mut report = Map::new();
     let mut table = String::new();
     let mut rollouts: Vec<(Phase, Vec<EpisodeRow>)> = Vec::new();
-    for &payload in &args.payload {
+    for (payload, name, model) in &payloads {
+        let payload = *payload;
+        if let Some(model) = model {
+            scene.payloads.insert(payload, model.clone());
+        }
         let mut learned = Vec::new();
         for &case in &cases {
             let (_, task, policy) = policies
@@ -252,9 +270,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 .find(|(p, ..)| *p == case.phase)
                 .context("every phase has a policy")?;
             let episodes = rollout::learned(&scene, task, policy, case, args.episodes_of(payload))
-                .with_context(|| format!("{} {}", payload.name(), case.name()))?;
+                .with_context(|| format!("{name} {}", case.name()))?;
             if let Some(out) = &args.out {
-                write_episodes(&out.join(payload.name()).join(case.name()), &episodes)?;
+                write_episodes(&out.join(name).join(case.name()), &episodes)?;
                 // The first payload's first episode of each phase's first case is its figure.
                 if !rollouts.iter().any(|(p, _)| *p == case.phase) {
                     if let Some(rows) = episodes.first() {
@@ -295,14 +313,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
         }
         write_table(
             &mut table,
-            payload,
+            name,
             args.episodes,
             randomize,
             &learned,
             scripted.as_deref(),
             deployed.as_ref().map(|(c, _)| c.as_slice()),
         )?;
-        report.insert(payload.name().into(), entry);
+        report.insert(name.clone(), entry);
     }
     if let Some(out) = &args.out {
         write_figures(out, &args.policies, &rollouts)?;
@@ -360,7 +378,7 @@ fn deployed_cases(
     args: &EvalArgs,
 ) -> Result<(Vec<(Case, Value)>, Value)> {
     let missions = rollout::deployed(scene, stack, args.episodes_of(payload))
-        .with_context(|| format!("deployed {}", payload.name()))?;
+        .with_context(|| format!("deployed {}", scene.payload_name(payload)))?;
     let mut cases = Vec::new();
     for case in [Case::ALL[0], Case::ALL[3], Case::ALL[4]] {
         let episodes: Vec<Vec<EpisodeRow>> = missions
@@ -373,7 +391,9 @@ fn deployed_cases(
             .collect();
         if let Some(out) = &args.out {
             write_episodes(
-                &out.join("deployed").join(payload.name()).join(case.name()),
+                &out.join("deployed")
+                    .join(scene.payload_name(payload))
+                    .join(case.name()),
                 &episodes,
             )?;
         }
@@ -425,7 +445,7 @@ fn scripted_cases(
             continue;
         }
         let missions = rollout::scripted(scene, plan, h, args.episodes_of(payload))
-            .with_context(|| format!("scripted {} lift {h} m", payload.name()))?;
+            .with_context(|| format!("scripted {} lift {h} m", scene.payload_name(payload)))?;
         let pick = |f: fn(&ScriptedSegments) -> &Vec<EpisodeRow>| {
             missions.iter().map(|m| f(m).clone()).collect::<Vec<_>>()
         };
@@ -444,7 +464,9 @@ fn scripted_cases(
         for (case, episodes) in segments {
             if let Some(out) = &args.out {
                 write_episodes(
-                    &out.join("scripted").join(payload.name()).join(case.name()),
+                    &out.join("scripted")
+                        .join(scene.payload_name(payload))
+                        .join(case.name()),
                     &episodes,
                 )?;
             }
@@ -472,7 +494,7 @@ fn find_case<'a>(set: Option<&'a [(Case, Value)]>, case: &Case) -> Option<&'a Va
 
 fn write_table(
     out: &mut String,
-    payload: PayloadKind,
+    payload: &str,
     episodes: usize,
     randomize: bool,
     learned: &[(Case, Value)],
@@ -482,8 +504,7 @@ fn write_table(
     let fmt = |e: std::fmt::Error| anyhow::anyhow!("formatting the table: {e}");
     writeln!(
         out,
-        "\n{} — {episodes} episodes per case, {}",
-        payload.name(),
+        "\n{payload} — {episodes} episodes per case, {}",
         if randomize {
             "domain randomization on"
         } else {

@@ -14,6 +14,7 @@ macro_rules! outln {
 mod can_cmd;
 mod eval;
 mod eval_cmd;
+mod payload_arg;
 mod policy_cmd;
 mod sim_cmd;
 mod urdf_cmd;

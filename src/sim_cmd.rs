@@ -10,8 +10,10 @@ use moonhaul_core::state::{Phase, UnitCommand};
 use moonhaul_sim::accuracy;
 use moonhaul_sim::scene::UNITS;
 use moonhaul_sim::scripted::{run_mission, MissionPlan, ScriptedController};
-use moonhaul_sim::{BatchEnv, Env, EnvOptions, PayloadKind, SceneModel, SimConfig};
+use moonhaul_sim::{BatchEnv, Env, EnvOptions, SceneModel, SimConfig};
 use plotters::prelude::*;
+
+use crate::payload_arg::{self, PayloadArg};
 
 #[derive(clap::Subcommand)]
 pub enum SimCommand {
@@ -19,9 +21,10 @@ pub enum SimCommand {
     /// write DIR/demo.csv (one row per control step) and DIR/demo.png (payload height, top,
     /// and tilt, bottom, over time; grid every 5 s, 0.1 m and 1 degree).
     Demo {
-        /// Payload: box, bricks or sledge.
+        /// Payload: box, bricks, sledge, or a payload URDF (a path ending in .urdf or
+        /// containing /; one link `payload` with one <box> collision, long side along x).
         #[arg(long)]
-        payload: PayloadKind,
+        payload: PayloadArg,
         /// Seed of the env's random stream.
         #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
         seed: u64,
@@ -73,7 +76,7 @@ pub fn run(cmd: SimCommand) -> Result<()> {
             out,
             config,
             mission,
-        } => demo(payload, seed, !no_randomization, &out, &config, &mission),
+        } => demo(&payload, seed, !no_randomization, &out, &config, &mission),
         SimCommand::Bench {
             json,
             envs,
@@ -122,7 +125,7 @@ fn load_mission(mission: &Path) -> Result<MissionPlan> {
 }
 
 fn demo(
-    payload: PayloadKind,
+    payload: &PayloadArg,
     seed: u64,
     randomize: bool,
     out: &Path,
@@ -130,7 +133,8 @@ fn demo(
     mission: &Path,
 ) -> Result<()> {
     prepare_out_dir(out)?;
-    let scene = load_scene(config)?;
+    let mut scene = load_scene(config)?;
+    let payload = payload_arg::resolve(&mut scene, payload)?;
     let plan = load_mission(mission)?;
     let options = EnvOptions {
         randomize,
@@ -179,7 +183,7 @@ fn demo(
     outln!(
         "{} ({}): max height {:.3} m, max tilt {:.2} deg, travel {:.3} m, touchdown {:.3} m/s, \
          max grasp force {:.1} N, grasp drift {:.2} mm / {:.3} deg, broken: {}",
-        payload.name(),
+        scene.payload_name(payload),
         if randomize {
             format!("randomized, seed {seed}")
         } else {

@@ -64,6 +64,74 @@ fn demo_rejects_an_unknown_payload_by_name() {
     assert!(String::from_utf8_lossy(&output.stderr).contains("piano"));
 }
 
+/// A 0.5 × 0.3 × 0.2 m, 6 kg payload box, its long side `x` by `y`.
+fn payload_urdf(x: f64, y: f64) -> String {
+    let (z, m) = (0.2, 6.0 / 12.0);
+    format!(
+        "<?xml version=\"1.0\"?>\n<robot name=\"crate\"><link name=\"payload\"><inertial>\
+         <mass value=\"6\"/><inertia ixx=\"{}\" ixy=\"0\" ixz=\"0\" iyy=\"{}\" iyz=\"0\" \
+         izz=\"{}\"/></inertial><collision><geometry><box size=\"{x} {y} {z}\"/></geometry>\
+         </collision></link></robot>\n",
+        m * (y * y + z * z),
+        m * (x * x + z * z),
+        m * (x * x + y * y)
+    )
+}
+
+#[test]
+fn demo_carries_a_payload_urdf() {
+    let dir = tempfile::tempdir().unwrap();
+    let urdf = dir.path().join("crate_small.urdf");
+    std::fs::write(&urdf, payload_urdf(0.5, 0.3)).unwrap();
+    let out = dir.path().join("run");
+    let text = stdout(&moonhaul(&[
+        "sim",
+        "demo",
+        "--payload",
+        urdf.to_str().unwrap(),
+        "--no-randomization",
+        "--out",
+        out.to_str().unwrap(),
+        "--config",
+        CONFIG,
+    ]));
+    assert!(
+        text.starts_with("crate_small (nominal)") && text.contains("broken: false"),
+        "{text}"
+    );
+    assert!(out.join("demo.csv").is_file() && out.join("demo.png").is_file());
+}
+
+#[test]
+fn demo_refuses_a_bad_payload_urdf_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let out = out.to_str().unwrap();
+    let sideways = dir.path().join("sideways.urdf");
+    std::fs::write(&sideways, payload_urdf(0.3, 0.5)).unwrap();
+    let demo = |payload: &str, needle: &str| {
+        let args = [
+            "sim",
+            "demo",
+            "--payload",
+            payload,
+            "--out",
+            out,
+            "--config",
+            CONFIG,
+        ];
+        let stderr = fails_naming(&args, payload);
+        assert!(stderr.contains(needle), "{stderr}");
+    };
+    demo(sideways.to_str().unwrap(), "long side");
+    demo(
+        dir.path().join("absent.urdf").to_str().unwrap(),
+        "absent.urdf",
+    );
+    // A word that is neither a shipped payload nor a path lists the choices.
+    demo("crate", "sledge");
+}
+
 #[test]
 fn bench_json_prints_one_line_with_the_rates() {
     let text = stdout(&moonhaul(&[

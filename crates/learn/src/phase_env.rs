@@ -103,6 +103,21 @@ impl PhaseVecEnv {
         threads: usize,
     ) -> Result<Self, LearnError> {
         let scene = SceneModel::new(sim)?;
+        Self::with_scene(phase, scene, tasks, reward, gamma, worlds, threads)
+    }
+
+    /// As [`PhaseVecEnv::new`], on a scene the caller built: one carrying a payload file
+    /// ([`SceneModel::add_payload_file`]) in its `randomization.payloads`, say. The action map
+    /// is built around the grasp of the first of those payloads.
+    pub fn with_scene(
+        phase: Option<Phase>,
+        scene: SceneModel,
+        tasks: TaskConfig,
+        reward: RewardConfig,
+        gamma: f64,
+        worlds: usize,
+        threads: usize,
+    ) -> Result<Self, LearnError> {
         let task = match phase {
             Some(phase) => PhaseTask::new(phase, tasks, &scene)?,
             None => PhaseTask::mission(tasks, &scene)?,

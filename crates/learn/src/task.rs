@@ -2,6 +2,7 @@
 //! exported policy identifies itself.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use moonhaul_core::state::Phase;
 
@@ -9,7 +10,7 @@ use moonhaul_core::observation::{
     layout_fields, LAYOUT_FIELDS_KEY, LAYOUT_VERSION_KEY, OBS_LAYOUT_VERSION,
 };
 use moonhaul_sim::task::TaskConfig;
-use moonhaul_sim::SimConfig;
+use moonhaul_sim::{SceneModel, SimConfig};
 
 use crate::config::{Task, TrainConfig};
 use crate::env::VecEnv;
@@ -19,9 +20,25 @@ use crate::LearnError;
 
 /// `num_envs` environments of the config's task: pendulums, or simulated worlds of a phase
 /// task (two rows each, one per unit; see [`crate::phase_env`]).
-pub fn make_env(config: &TrainConfig, num_envs: usize) -> Result<Box<dyn VecEnv>, LearnError> {
+///
+/// `payload_file`, a payload URDF (see [`moonhaul_sim::scene`]), replaces the sim config's
+/// `randomization.payloads`, so every world carries it and the action map is built around its
+/// grasp. It is an argument, not a config field, because configs name payloads only by their
+/// shipped names; a run trained on a file needs the same file again to resume or export.
+pub fn make_env(
+    config: &TrainConfig,
+    num_envs: usize,
+    payload_file: Option<&Path>,
+) -> Result<Box<dyn VecEnv>, LearnError> {
     let task = config.run.task;
     let phase = match task {
+        Task::Pendulum if payload_file.is_some() => {
+            return Err(LearnError::InvalidConfig {
+                field: "run.task".into(),
+                reason: "the pendulum task carries no payload; a payload file needs a robot task"
+                    .into(),
+            })
+        }
         Task::Pendulum => return Ok(Box::new(PendulumVecEnv::new(num_envs))),
         Task::Lift => Some(Phase::Lift),
         Task::Transport => Some(Phase::Transport),
@@ -36,9 +53,14 @@ pub fn make_env(config: &TrainConfig, num_envs: usize) -> Result<Box<dyn VecEnv>
     let reward = config.reward.ok_or_else(|| missing("reward"))?;
     let sim = SimConfig::load(&world.sim)?;
     let tasks = TaskConfig::load(&world.tasks)?;
-    Ok(Box::new(PhaseVecEnv::new(
+    let mut scene = SceneModel::new(sim)?;
+    if let Some(path) = payload_file {
+        let kind = scene.add_payload_file(path)?;
+        scene.config.randomization.payloads = vec![kind];
+    }
+    Ok(Box::new(PhaseVecEnv::with_scene(
         phase,
-        sim,
+        scene,
         tasks,
         reward,
         config.ppo.gamma,
@@ -85,8 +107,26 @@ mod tests {
             ("mission", 6),
         ] {
             let config = TrainConfig::load(format!("{dir}{name}.toml")).unwrap();
-            let env = make_env(&config, 3).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let env = make_env(&config, 3, None).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(env.num_envs(), rows, "{name}");
         }
+    }
+
+    #[test]
+    fn a_payload_file_replaces_the_training_payloads() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../");
+        let config =
+            |name: &str| TrainConfig::load(format!("{dir}configs/train/{name}.toml")).unwrap();
+        let lift = config("lift");
+        // The sledge is lower than the config's first payload (the box): the action map,
+        // centred on the grasp, moves with the file.
+        let sledge = Path::new(dir).join("assets/payload_sledge.urdf");
+        let on_file = make_env(&lift, 1, Some(&sledge)).unwrap();
+        let shipped = make_env(&lift, 1, None).unwrap();
+        assert_ne!(on_file.action_offset(), shipped.action_offset());
+        let unit = Path::new(dir).join("assets/unit.urdf");
+        let err = make_env(&lift, 1, Some(&unit)).err().unwrap().to_string();
+        assert!(err.contains("unit.urdf"), "{err}");
+        assert!(make_env(&config("pendulum"), 1, Some(&sledge)).is_err());
     }
 }

@@ -37,6 +37,9 @@ pub struct TrainOptions {
     /// Set (e.g. by a Ctrl-C handler) to stop after the current iteration, keeping a
     /// checkpoint of it.
     pub stop: Arc<AtomicBool>,
+    /// A payload URDF every world carries instead of the sim config's payloads (see
+    /// [`make_env`]); recorded in the exported policy as `payload_file`.
+    pub payload_file: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone)]
@@ -123,6 +126,7 @@ fn provenance_extra(
     commit: String,
     progress: Progress,
     eval_return: Option<f64>,
+    payload_file: Option<&Path>,
 ) -> Result<BTreeMap<String, String>, LearnError> {
     let (_, mut extra) = export_identity(config.run.task);
     extra.insert("created_by".into(), "moonhaul-train".into());
@@ -134,6 +138,9 @@ fn provenance_extra(
         extra.insert("eval_return".into(), r.to_string());
     }
     extra.insert("commit".into(), commit);
+    if let Some(path) = payload_file {
+        extra.insert("payload_file".into(), path.display().to_string());
+    }
     extra.insert("config_sha256".into(), provenance::config_digest(config)?);
     Ok(extra)
 }
@@ -151,8 +158,13 @@ pub struct BestExport {
 /// is not its best when training oscillates; the evaluation episodes are the same every time,
 /// so their return ranks checkpoints fairly. Records the source commit of the run's own
 /// `policy.safetensors` and `train_compute_s`: rollout and update time up to that iteration
-/// (from `metrics.csv`, evaluations excluded).
-pub fn export_best(config: &TrainConfig, run_dir: &Path) -> Result<BestExport, LearnError> {
+/// (from `metrics.csv`, evaluations excluded). A run trained on a payload file needs the same
+/// `payload_file` ([`TrainOptions::payload_file`]): its grasp sets the action map.
+pub fn export_best(
+    config: &TrainConfig,
+    run_dir: &Path,
+    payload_file: Option<&Path>,
+) -> Result<BestExport, LearnError> {
     let rows = crate::metrics::read_rows(&run_dir.join("metrics.csv"))?;
     let best = rows
         .iter()
@@ -164,7 +176,7 @@ pub fn export_best(config: &TrainConfig, run_dir: &Path) -> Result<BestExport, L
             reason: "no evaluated iteration has a checkpoint".into(),
         })?;
     let (row, eval_return) = (*best.0, best.1);
-    let env = make_env(config, 1)?;
+    let env = make_env(config, 1, payload_file)?;
     let policy = ActorCritic::new(
         env.obs_dim(),
         env.critic_obs_dim(),
@@ -183,7 +195,7 @@ pub fn export_best(config: &TrainConfig, run_dir: &Path) -> Result<BestExport, L
     let commit = last
         .and_then(|p| p.metadata().extra.get("commit").cloned())
         .unwrap_or_else(provenance::commit);
-    let mut extra = provenance_extra(config, commit, progress, Some(eval_return))?;
+    let mut extra = provenance_extra(config, commit, progress, Some(eval_return), payload_file)?;
     let (mut compute_s, mut previous) = (0.0, 0);
     for r in &rows {
         let samples = r.env_steps.saturating_sub(previous);
@@ -238,8 +250,9 @@ pub fn train(
     tch::set_num_threads(threads);
     tch::manual_seed(config.run.seed as i64);
     let task = config.run.task;
-    let env = make_env(config, config.env.num_envs)?;
-    let eval_env = make_env(config, config.run.eval_episodes)?;
+    let payload_file = options.payload_file.as_deref();
+    let env = make_env(config, config.env.num_envs, payload_file)?;
+    let eval_env = make_env(config, config.run.eval_episodes, payload_file)?;
     let (obs_dim, critic_obs_dim) = (env.obs_dim(), env.critic_obs_dim());
     let action_dim = env.action_dim();
     rollout_size(
@@ -309,7 +322,7 @@ pub fn train(
     };
     plot_curves(dir, metrics.rows())?;
 
-    let mut extra = provenance_extra(config, commit, progress, eval_return)?;
+    let mut extra = provenance_extra(config, commit, progress, eval_return, payload_file)?;
     if let Some(last) = metrics.rows().last() {
         if let Some(r) = last.mean_return {
             extra.insert("final_mean_return".into(), r.to_string());

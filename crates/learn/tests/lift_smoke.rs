@@ -26,6 +26,7 @@ fn a_few_lift_iterations_raise_the_evaluation_return() {
         run_dir: dir.path().join("run"),
         resume: None,
         stop: Arc::new(AtomicBool::new(false)),
+        payload_file: None,
     };
     let mut evals = Vec::new();
     train(&config, &options, |row: &MetricsRow| {

@@ -44,6 +44,7 @@ fn trains_writes_everything_and_resumes() {
         run_dir: run.clone(),
         resume: None,
         stop: stop.clone(),
+        payload_file: None,
     };
     let mut seen = 0;
     let summary = train(&config, &options, |_| seen += 1).unwrap();
@@ -93,6 +94,7 @@ fn trains_writes_everything_and_resumes() {
         run_dir: run.clone(),
         resume: Some(summary.last_checkpoint),
         stop,
+        payload_file: None,
     };
     let resumed = train(&config, &options, |_| {}).unwrap();
     assert_eq!(
@@ -117,6 +119,7 @@ fn stop_flag_ends_after_the_iteration_and_keeps_its_checkpoint() {
         run_dir: run.clone(),
         resume: None,
         stop: stop.clone(),
+        payload_file: None,
     };
     // As the Ctrl-C handler does, mid-run: after iteration 1 (checkpoints are every 2).
     let summary = train(&tiny_config(), &options, |_| {
@@ -139,6 +142,7 @@ fn the_best_evaluated_checkpoint_is_exported_with_its_provenance() {
         run_dir: run.clone(),
         resume: None,
         stop: Arc::new(AtomicBool::new(false)),
+        payload_file: None,
     };
     train(&config, &options, |_| {}).unwrap();
     let evaluated: Vec<(usize, f64)> = rows(&run)
@@ -150,7 +154,7 @@ fn the_best_evaluated_checkpoint_is_exported_with_its_provenance() {
         .copied()
         .max_by(|a, b| a.1.total_cmp(&b.1))
         .unwrap();
-    let best = moonhaul_learn::trainer::export_best(&config, &run).unwrap();
+    let best = moonhaul_learn::trainer::export_best(&config, &run, None).unwrap();
     assert_eq!((best.iteration, best.eval_return), (iteration, eval_return));
     let policy = Policy::from_file(&best.policy).unwrap();
     let extra = &policy.metadata().extra;
@@ -161,5 +165,5 @@ fn the_best_evaluated_checkpoint_is_exported_with_its_provenance() {
     }
     // A run without a checkpoint of any evaluated iteration has nothing to export.
     std::fs::remove_dir_all(run.join("checkpoints")).unwrap();
-    assert!(moonhaul_learn::trainer::export_best(&config, &run).is_err());
+    assert!(moonhaul_learn::trainer::export_best(&config, &run, None).is_err());
 }

@@ -304,6 +304,14 @@ mod tests {
                 text.replace("control = \"control.toml\"", "control = \"absent.toml\""),
                 "absent.toml",
             ),
+            // A custom payload is a file given in code, never a config name.
+            (
+                text.replace(
+                    "payloads = [\"box\", \"bricks\"]",
+                    "payloads = [\"box\", \"custom\"]",
+                ),
+                "randomization.payloads",
+            ),
         ];
         for (i, (text, field)) in cases.into_iter().enumerate() {
             let path = dir.path().join(format!("sim{i}.toml"));

@@ -7,6 +7,13 @@
 //! - [`model`]: URDFs split into rapier bodies; [`ik`]: arm inverse kinematics on core's FK.
 //! - [`randomization`] and [`terrain`]: the paper's domain randomization.
 //! - [`scene`]: one world ([`scene::Env`]) — formation, multibodies, grasps, readout.
+//!
+//!   **Payloads** are URDFs: the shipped `assets/payload_{box,bricks,sledge}.urdf`, or any file
+//!   [`SceneModel::add_payload_file`] loads as [`PayloadKind::Custom`]. A payload has exactly
+//!   one link, named `payload`, with a positive mass and exactly one `<collision>`, a `<box>`
+//!   centred on the link frame with its long side along x (size x ≥ size y), and the arms must
+//!   reach its grasp; the [`scene`] module docs give the whole convention. Violations are
+//!   errors naming the file.
 //! - [`batch`]: many worlds stepped in parallel, deterministically.
 //! - [`task`]: the lift, transport and place episodes that training and evaluation share.
 //! - [`scripted`]: the non-learned lift → transport → place controller; [`accuracy`]: the

@@ -20,7 +20,7 @@ use crate::SimError;
 use moonhaul_core::config::{count, in_range, interval, section, FieldError};
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
 
-/// The payloads of the paper.
+/// The payloads of the paper, and one loaded from a URDF file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PayloadKind {
@@ -30,21 +30,30 @@ pub enum PayloadKind {
     Bricks,
     /// Sledge, 5.3 kg, elongated; unseen in the paper's training.
     Sledge,
+    /// The payload a scene loaded from a URDF file
+    /// ([`crate::SceneModel::add_payload_file`]). Set only in code: a config naming it is
+    /// refused, since a config cannot say which file it means.
+    #[serde(skip_deserializing)]
+    Custom,
 }
 
 impl PayloadKind {
+    /// The shipped payloads (`assets/payload_<name>.urdf`); never [`PayloadKind::Custom`].
     pub const ALL: [PayloadKind; 3] = [PayloadKind::Box, PayloadKind::Bricks, PayloadKind::Sledge];
 
-    /// The name used in configs, CLI flags and asset file names.
+    /// The name used in configs, CLI flags and asset file names; `custom` for a payload file,
+    /// which [`crate::SceneModel::payload_name`] names by its file instead.
     pub fn name(self) -> &'static str {
         match self {
             PayloadKind::Box => "box",
             PayloadKind::Bricks => "bricks",
             PayloadKind::Sledge => "sledge",
+            PayloadKind::Custom => "custom",
         }
     }
 }
 
+/// Parses a shipped payload's name only: `custom` names no file.
 impl std::str::FromStr for PayloadKind {
     type Err = SimError;
 

@@ -20,16 +20,28 @@
 //! removed on release or when its wrench exceeds the configured limit. Only wheels, casters,
 //! the payload and the ground collide.
 //!
+//! **Payloads.** A payload is a URDF with exactly one link, named `payload`, with a positive
+//! mass and exactly one `<collision>`: a `<box>` centred on and aligned with the link frame
+//! (no collision `<origin>` offset), its long side along x (size x ≥ size y), the direction
+//! of travel; the units grasp its ±y faces at the height of its centre. The centre of mass
+//! may be offset (`<inertial><origin>`). Core's reader checks the physical values (finite,
+//! non-negative mass, a plausible inertia, positive sizes), and the grasp solver must find an
+//! arm configuration that reaches the grasp; every violation is an error naming the file. The shipped
+//! payloads are `assets/payload_<name>.urdf` ([`PayloadKind::ALL`]); any other file is loaded
+//! with [`SceneModel::add_payload_file`] as [`PayloadKind::Custom`], one per scene, named by
+//! its file stem ([`SceneModel::payload_name`]).
+//!
 //! **Files.** This root holds the shared types ([`SceneModel`], [`Env`]); the private
-//! submodules hold one concept each: `grasp` solves the grasp configuration, `world` builds
-//! the rapier world at reset, `ground` is the terrain heightfield, `grasp_joint` makes,
-//! measures and breaks the grasps, `actuation` applies commands to the motors, and `readout`
-//! reads the world into an [`EnvState`].
+//! submodules hold one concept each: `payload` loads and checks payload URDFs, `grasp` solves
+//! the grasp configuration, `world` builds the rapier world at reset, `ground` is the terrain
+//! heightfield, `grasp_joint` makes, measures and breaks the grasps, `actuation` applies
+//! commands to the motors, and `readout` reads the world into an [`EnvState`].
 
 mod actuation;
 mod grasp;
 mod grasp_joint;
 mod ground;
+mod payload;
 mod readout;
 mod world;
 
@@ -44,11 +56,12 @@ use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::*;
 
 use crate::config::SimConfig;
-use crate::model::{self, RobotModel, Shape};
+use crate::model::{self, RobotModel};
 use crate::randomization::{CommandNoise, EpisodeDraw, PayloadKind};
 use crate::SimError;
 
 pub use grasp_joint::GraspState;
+pub use payload::PAYLOAD_LINK;
 pub use readout::{EnvState, PayloadReadout, UnitReadout};
 
 use world::UnitHandles;
@@ -123,7 +136,7 @@ pub struct SceneModel {
 }
 
 impl SceneModel {
-    /// Loads the unit and payload URDFs and solves the grasp configurations.
+    /// Loads the unit and the shipped payload URDFs and solves the grasp configurations.
     pub fn new(config: SimConfig) -> Result<Self, SimError> {
         config.validate()?;
         let unit_path = config.unit_urdf();
@@ -163,26 +176,8 @@ impl SceneModel {
                 .scene
                 .assets_dir
                 .join(format!("payload_{}.urdf", kind.name()));
-            let model = RobotModel::from_file(&path)?;
-            let half_extents_m = match model.bodies[0].colliders.first().map(|c| c.shape) {
-                Some(Shape::Cuboid { half_extents_m }) => half_extents_m,
-                _ => {
-                    return Err(SimError::Model {
-                        path,
-                        reason: "payload needs one box collider".into(),
-                    })
-                }
-            };
-            let lift_path_q_rad = scene.solve_grasp(&half_extents_m)?;
-            scene.payloads.insert(
-                kind,
-                PayloadModel {
-                    model,
-                    half_extents_m,
-                    grasp_q_rad: lift_path_q_rad[0],
-                    lift_path_q_rad,
-                },
-            );
+            let payload = scene.load_payload(&path)?;
+            scene.payloads.insert(kind, payload);
         }
         Ok(scene)
     }

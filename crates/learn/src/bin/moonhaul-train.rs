@@ -4,7 +4,12 @@
 //! moonhaul-train --config configs/train/pendulum.toml [--out DIR] [--seed N] [--resume CKPT]
 //!                [--time-limit-s S]
 //! moonhaul-train --config CONFIG [--out DIR] --export-best
+//! moonhaul-train --config configs/train/lift.toml --payload crate.urdf [...]
 //! ```
+//!
+//! `--payload FILE` trains on a payload URDF (see `moonhaul_sim::scene` for what it must be)
+//! instead of the sim config's payloads; the config is not changed, so `--resume` and
+//! `--export-best` of such a run need the same `--payload` again.
 //!
 //! Ctrl-C stops after the current iteration and keeps a checkpoint of it; a second Ctrl-C
 //! exits at once.
@@ -17,7 +22,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use moonhaul_core::input::{check_readable, MAX_CHECKPOINT_BYTES};
+use moonhaul_core::input::{check_readable, MAX_CHECKPOINT_BYTES, MAX_URDF_BYTES};
 use moonhaul_learn::config::TrainConfig;
 use moonhaul_learn::trainer::{default_run_dir, export_best, train, TrainOptions};
 
@@ -78,6 +83,11 @@ struct Args {
     /// runs/<run.name>) as best_policy.safetensors.
     #[arg(long, conflicts_with_all = ["resume", "time_limit_s"])]
     export_best: bool,
+    /// Payload URDF every training world carries, replacing the sim config's payloads (one
+    /// link `payload`, one <box> collision, long side along x). Give it again to --resume or
+    /// --export-best such a run.
+    #[arg(long, value_name = "FILE")]
+    payload: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -88,6 +98,10 @@ fn main() -> Result<()> {
         config.run.seed = seed;
     }
     let resume_dir = args.resume.as_deref().map(check_resume).transpose()?;
+    // Before the run folder exists; the sim checks the payload convention itself.
+    if let Some(payload) = &args.payload {
+        check_readable(payload, MAX_URDF_BYTES).context("--payload")?;
+    }
     let run_dir = match (&args.out, resume_dir) {
         (Some(out), _) => {
             check_out(out)?;
@@ -99,7 +113,7 @@ fn main() -> Result<()> {
     };
 
     if args.export_best {
-        let best = export_best(&config, &run_dir)
+        let best = export_best(&config, &run_dir, args.payload.as_deref())
             .with_context(|| format!("exporting the best checkpoint of {}", run_dir.display()))?;
         writeln!(
             std::io::stdout().lock(),
@@ -144,6 +158,7 @@ fn main() -> Result<()> {
         run_dir: run_dir.clone(),
         resume: args.resume.clone(),
         stop,
+        payload_file: args.payload.clone(),
     };
     let mut last_eval = None;
     let summary = train(&config, &options, |row| {

@@ -67,7 +67,7 @@ impl Env {
         } else {
             Randomization::noiseless()
         };
-        let payload_model = &scene.payloads[&draw.payload];
+        let payload_model = scene.payload(draw.payload)?;
 
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, config.physics.gravity_mps2 as f32);
