@@ -4,7 +4,7 @@
 //! baseline. Each episode becomes rows of [`EpisodeRow`].
 
 use anyhow::{bail, Context, Result};
-use moonhaul_core::observation::{check_layout, ACTOR_OBS_DIM};
+use moonhaul_core::observation::{check_layout, field_range, ACTOR_OBS_DIM};
 use moonhaul_core::policy::{Policy, PolicyScratch};
 use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
@@ -320,6 +320,12 @@ pub fn deployed(scene: &SceneModel, stack: &Stack, run: Episodes) -> Result<Vec<
         .map(|&p| lift_task.config.duration_s(p))
         .sum();
     let model = UnitModel::new(scene.spec.clone());
+    let field = |name: &str| {
+        field_range(name).with_context(|| format!("the observation layout has no {name}"))
+    };
+    // z of the cargo's displacement, and the base goal's x (y follows).
+    let lift_index = field("cargo.ee_displacement_m")?.start + 2;
+    let goal_base = field("goal.base")?.start;
     let options = lift_task.env_options(run.randomize, Some(run.payload));
     let mut batch = BatchEnv::new(scene.clone(), run.count, run.seed, options, run.threads)?;
     let mut work: Vec<(u64, Option<DeployedMission>)> = (0..run.count)
@@ -398,22 +404,23 @@ pub fn deployed(scene: &SceneModel, stack: &Stack, run: Episodes) -> Result<Vec<
                 if completed {
                     // A second of rest after the release, for the steady-state figures.
                     after_release_s += period_s;
-                    if after_release_s >= 1.0 {
+                    if after_release_s >= super::metrics::STEADY_WINDOW_S {
                         break;
                     }
                     continue;
                 }
-                let mut after = [0.0; ACTOR_OBS_DIM];
+                // The gate's onboard estimates, read from the units' observations after the step:
+                // the mean FK lift of the cargo and unit 0's odometric distance to its goal.
                 let mut lift_estimate = 0.0;
-                for i in 0..UNITS {
-                    episode.observe(task, scene, i, &mut after)?;
-                    lift_estimate += after[18] / UNITS as f64;
+                for (i, o) in obs.iter_mut().enumerate() {
+                    episode.observe(task, scene, i, o)?;
+                    lift_estimate += o[lift_index] / UNITS as f64;
                 }
-                episode.observe(task, scene, 0, &mut after)?;
+                let goal_distance_m = obs[0][goal_base].hypot(obs[0][goal_base + 1]);
                 let forces = state.units.map(|u| u.grasp.force_n);
                 let measured = Measurements {
                     payload_height_m: lift_estimate,
-                    goal_distance_m: after[34].hypot(after[35]),
+                    goal_distance_m,
                     grasp_force_n: &forces,
                 };
                 let next = gate.step(phase, &measured, false, false);

@@ -65,6 +65,19 @@ pub const ACTOR_OBS_DIM: usize = {
     n
 };
 
+/// Where field `name` of [`OBS_FIELDS`] lies in o⁽ⁱ⁾ (for readers of an observation, such as
+/// the phase gate's onboard estimates), or `None` for a name not in the layout.
+pub fn field_range(name: &str) -> Option<std::ops::Range<usize>> {
+    let mut start = 0;
+    for (field, width) in OBS_FIELDS {
+        if field == name {
+            return Some(start..start + width);
+        }
+        start += width;
+    }
+    None
+}
+
 /// Metadata key of the layout version in a policy file.
 pub const LAYOUT_VERSION_KEY: &str = "obs_layout_version";
 /// Metadata key of the field list in a policy file.
@@ -256,6 +269,9 @@ mod tests {
     #[test]
     fn layout_fields_add_up_and_round_trip_through_metadata() {
         assert_eq!(ACTOR_OBS_DIM, 38);
+        assert_eq!(field_range("cargo.ee_displacement_m"), Some(16..19));
+        assert_eq!(field_range("goal.base"), Some(34..38));
+        assert_eq!(field_range("nope"), None);
         let mut extra = std::collections::BTreeMap::new();
         assert!(check_layout(&extra).is_err());
         extra.insert(LAYOUT_VERSION_KEY.into(), OBS_LAYOUT_VERSION.to_string());

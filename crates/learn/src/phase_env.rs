@@ -17,7 +17,7 @@ use moonhaul_core::observation::ACTOR_OBS_DIM;
 use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
 use moonhaul_sim::task::{Episode, PhaseTask, StepOutcome, TaskConfig, CRITIC_OBS_DIM};
-use moonhaul_sim::{BatchEnv, SimConfig, SimError};
+use moonhaul_sim::{BatchEnv, SimError};
 use rand_chacha::ChaCha8Rng;
 
 use crate::env::{check_len, VecEnv, VecStep};
@@ -68,11 +68,7 @@ pub fn phase_reward(
     };
     match episode.phase() {
         Phase::Lift | Phase::Idle => {
-            let mass_kg = scene.payloads[&env.payload_kind()].model.bodies[0]
-                .inertia
-                .mass_kg
-                * env.draw().payload_mass_scale;
-            let weight_n = mass_kg * scene.config.physics.gravity_mps2.abs();
+            let weight_n = env.payload_mass_kg(scene) * scene.config.physics.gravity_mps2.abs();
             let forces = state.units.map(|u| u.grasp.force_n);
             reward.lift(&sample, &goal, force_variance(&forces, weight_n))
         }
@@ -92,24 +88,10 @@ pub struct PhaseVecEnv {
 
 impl PhaseVecEnv {
     /// `worlds` simulated worlds (2 rows each) of `phase` (`None`: the monolithic baseline's
-    /// whole mission) on `threads` simulator threads, with domain randomization on.
+    /// whole mission) on `scene`, on `threads` simulator threads, with domain randomization on.
+    /// The action map is built around the grasp of the first of `randomization.payloads` (a
+    /// payload file the caller added with [`SceneModel::add_payload_file`], say).
     pub fn new(
-        phase: Option<Phase>,
-        sim: SimConfig,
-        tasks: TaskConfig,
-        reward: RewardConfig,
-        gamma: f64,
-        worlds: usize,
-        threads: usize,
-    ) -> Result<Self, LearnError> {
-        let scene = SceneModel::new(sim)?;
-        Self::with_scene(phase, scene, tasks, reward, gamma, worlds, threads)
-    }
-
-    /// As [`PhaseVecEnv::new`], on a scene the caller built: one carrying a payload file
-    /// ([`SceneModel::add_payload_file`]) in its `randomization.payloads`, say. The action map
-    /// is built around the grasp of the first of those payloads.
-    pub fn with_scene(
         phase: Option<Phase>,
         scene: SceneModel,
         tasks: TaskConfig,

@@ -58,7 +58,7 @@ pub fn make_env(
         let kind = scene.add_payload_file(path)?;
         scene.config.randomization.payloads = vec![kind];
     }
-    Ok(Box::new(PhaseVecEnv::with_scene(
+    Ok(Box::new(PhaseVecEnv::new(
         phase,
         scene,
         tasks,

@@ -249,4 +249,12 @@ impl Env {
     pub fn draw(&self) -> &EpisodeDraw {
         &self.draw
     }
+
+    /// This episode's payload mass (its URDF mass times the drawn scale), kg.
+    pub fn payload_mass_kg(&self, scene: &SceneModel) -> f64 {
+        scene.payloads[&self.payload_kind].model.bodies[0]
+            .inertia
+            .mass_kg
+            * self.draw.payload_mass_scale
+    }
 }

@@ -19,6 +19,7 @@ use std::path::Path;
 
 use crate::ik::{self, IkSettings};
 use crate::scene::{Env, EnvState, SceneModel, UNITS};
+use crate::task::VelocityProfile;
 use crate::SimError;
 
 /// Timing and geometry of the scripted mission: `configs/mission.toml`.
@@ -125,8 +126,17 @@ fn min_jerk(tau: f64) -> f64 {
 }
 
 impl MissionPlan {
+    /// The base reference's speed profile while driving.
+    fn profile(&self) -> VelocityProfile {
+        VelocityProfile {
+            distance_m: self.distance_m,
+            speed_mps: self.speed_mps,
+            accel_mps2: self.accel_mps2,
+        }
+    }
+
     fn drive_s(&self) -> f64 {
-        self.distance_m / self.speed_mps + self.speed_mps / self.accel_mps2
+        self.profile().duration_s()
     }
 
     /// Start times of lift, hold, transport, hold, place, and the release time.
@@ -156,25 +166,12 @@ impl MissionPlan {
     /// profile of [`MissionPlan::at`]).
     pub fn travelled_m(&self, t: f64) -> f64 {
         let [_, _, drive, ..] = self.schedule();
-        let ramp = self.speed_mps / self.accel_mps2;
-        let s = (t - drive).clamp(0.0, self.drive_s());
-        let cruise_end = self.drive_s() - ramp;
-        let up = |s: f64| 0.5 * self.accel_mps2 * s.min(ramp).powi(2);
-        let cruise = self.speed_mps * (s.min(cruise_end) - ramp).max(0.0);
-        let down = if s > cruise_end {
-            let d = s - cruise_end;
-            self.speed_mps * d - 0.5 * self.accel_mps2 * d * d
-        } else {
-            0.0
-        };
-        up(s) + cruise + down
+        self.profile().travelled_at(t - drive)
     }
 
     /// Phase, end-effector lift (m) and base ground speed (m/s) at time `t`.
     pub fn at(&self, t: f64) -> (Phase, f64, f64) {
         let [lift, hold1, drive, hold2, place, release] = self.schedule();
-        let ramp = self.speed_mps / self.accel_mps2;
-        let drive_t = self.drive_s();
         if t < lift {
             (Phase::Idle, 0.0, 0.0)
         } else if t < hold1 {
@@ -186,9 +183,11 @@ impl MissionPlan {
         } else if t < drive {
             (Phase::Lift, self.lift_height_m, 0.0)
         } else if t < hold2 {
-            let s = t - drive;
-            let v = self.speed_mps * (s / ramp).min(1.0).min((drive_t - s) / ramp).max(0.0);
-            (Phase::Transport, self.lift_height_m, v)
+            (
+                Phase::Transport,
+                self.lift_height_m,
+                self.profile().speed_at(t - drive),
+            )
         } else if t < place {
             (Phase::Transport, self.lift_height_m, 0.0)
         } else if t < place + self.place_duration_s {

@@ -36,9 +36,7 @@
 
 use moonhaul_core::config::Validate;
 use moonhaul_core::config::{self, in_range, interval, positive, section, ConfigError, FieldError};
-use moonhaul_core::observation::{
-    relative_pose, unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM,
-};
+use moonhaul_core::observation::{unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM};
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::{
     Phase, PlanarPose, UnitCommand, UnitState, ARM_JOINTS, UNIT_ACTION_DIM, WHEEL_JOINTS,
@@ -46,7 +44,7 @@ use moonhaul_core::state::{
 use nalgebra::Vector2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -653,25 +651,14 @@ impl Episode {
         out[..ACTOR_OBS_DIM].copy_from_slice(&actor);
         let p = &state.payload;
         let draw = env.draw();
-        let mass_kg = scene.payloads[&env.payload_kind()].model.bodies[0]
-            .inertia
-            .mass_kg
-            * draw.payload_mass_scale;
+        let mass_kg = env.payload_mass_kg(scene);
         let share_n = mass_kg * scene.config.physics.gravity_mps2.abs() / UNITS as f64;
-        let own_pose = &state.units[i].state.base_pose;
+        // The payload's planar error to its reference, in the unit's own (true) frame.
         let error = self.reference_position_m(task) - p.pose.translation.vector.xy();
-        let to_own = relative_pose(
-            &PlanarPose::default(),
-            &PlanarPose {
-                x_m: error.x,
-                y_m: error.y,
-                yaw_rad: 0.0,
-            },
-        );
-        let (sin, cos) = own_pose.yaw_rad.sin_cos();
+        let (sin, cos) = state.units[i].state.base_pose.yaw_rad.sin_cos();
         let (ex, ey) = (
-            cos * to_own.x_m + sin * to_own.y_m,
-            -sin * to_own.x_m + cos * to_own.y_m,
+            cos * error.x + sin * error.y,
+            -sin * error.x + cos * error.y,
         );
         let (own, peer) = (&state.units[i].grasp, &state.units[1 - i].grasp);
         let extra: [f64; CRITIC_EXTRA] = [
@@ -688,7 +675,7 @@ impl Episode {
             own.torque_nm / share_n,
             peer.torque_nm / share_n,
             draw.wheel_friction,
-            mass_kg / 10.0,
+            mass_kg,
             ex,
             ey,
             1.0 - self.steps as f64 / task.max_steps as f64,
@@ -710,13 +697,7 @@ impl Episode {
         odometry: bool,
     ) {
         let s = &task.config.sensing;
-        let noise = |rng: &mut ChaCha8Rng, std: f64| {
-            if std > 0.0 {
-                Normal::new(0.0, std).map_or(0.0, |d| d.sample(rng))
-            } else {
-                0.0
-            }
-        };
+        let noise = |rng: &mut ChaCha8Rng, std: f64| std * rng.sample::<f64, _>(StandardNormal);
         for i in 0..UNITS {
             let truth = &state.units[i].state;
             let mut sensed = *truth;
