@@ -304,6 +304,48 @@ fn scripted_commands(
     Ok(commands)
 }
 
+/// Median costs of one env on the calling thread, s.
+struct ResetCost {
+    /// [`Env::reset`]: restoring the built world.
+    reset_s: f64,
+    /// Building a new world ([`Env::new`]), what a reset cost before templates.
+    rebuild_s: f64,
+    /// One control step of the replayed plan.
+    step_s: f64,
+}
+
+/// Times resets, rebuilds and control steps of one randomized env alternately (one episode of
+/// up to 25 steps of the plan between resets), so all three see the same machine load.
+fn reset_cost(scene: &SceneModel, plan: &[[UnitCommand; UNITS]]) -> Result<ResetCost> {
+    const ROUNDS: usize = 20;
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let episode = &plan[..plan.len().min(25)];
+    let mut env = Env::new(scene, 1, EnvOptions::default())?;
+    let (mut resets, mut rebuilds, mut steps) = (vec![], vec![], vec![]);
+    for round in 0..ROUNDS {
+        let start = Instant::now();
+        for command in episode {
+            env.step(scene, command);
+        }
+        steps.push(start.elapsed().as_secs_f64() / episode.len() as f64);
+        let start = Instant::now();
+        env.reset();
+        resets.push(start.elapsed().as_secs_f64());
+        let start = Instant::now();
+        let rebuilt = Env::new(scene, round as u64 + 2, EnvOptions::default())?;
+        rebuilds.push(start.elapsed().as_secs_f64());
+        drop(rebuilt);
+    }
+    Ok(ResetCost {
+        reset_s: median(resets),
+        rebuild_s: median(rebuilds),
+        step_s: median(steps),
+    })
+}
+
 /// Most envs in a bench batch: an env holds ~0.9 MB, so the largest batch takes ~4 GB.
 const MAX_BENCH_ENVS: usize = 4096;
 /// Most control steps per env: 10⁶ steps are 5.5 h of simulated time at 50 Hz (the commands
@@ -380,10 +422,19 @@ fn bench(
         rates.push((count, batch.threads(), control, control * decimation));
     }
     let &(n, t, control, physics) = rates.last().context("no bench ran")?;
+    let resets = reset_cost(&scene, &plan)?;
     if json {
         outln!(
             "{}",
-            serde_json::json!({"envs": n, "threads": t, "control_steps_per_s": control, "physics_steps_per_s": physics})
+            serde_json::json!({
+                "envs": n,
+                "threads": t,
+                "control_steps_per_s": control,
+                "physics_steps_per_s": physics,
+                "reset_s": resets.reset_s,
+                "rebuild_s": resets.rebuild_s,
+                "control_step_s": resets.step_s,
+            })
         )?;
         return Ok(());
     }
@@ -400,6 +451,15 @@ fn bench(
             "{n:>5} env(s) on {t} thread(s): {control:>9.0} control steps/s, {physics:>9.0} physics steps/s"
         )?;
     }
+    outln!(
+        "reset of one env (one thread): {:.3} ms = {:.2} control steps ({:.3} ms each); \
+         rebuilding it instead: {:.2} ms = {:.1} control steps",
+        resets.reset_s * 1e3,
+        resets.reset_s / resets.step_s,
+        resets.step_s * 1e3,
+        resets.rebuild_s * 1e3,
+        resets.rebuild_s / resets.step_s,
+    )?;
     let report = accuracy::compare(&scene, mission).context("accuracy run failed")?;
     outln!("{report}")?;
     Ok(())

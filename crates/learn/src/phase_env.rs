@@ -300,7 +300,7 @@ impl VecEnv for PhaseVecEnv {
                     }
                     world.final_obs = world.obs;
                     world.final_critic = world.critic;
-                    env.reset(scene)?;
+                    env.reset();
                     env.state_into(scene, state);
                     world.episode = task.begin(scene, env, state, &mut world.rng)?;
                 }

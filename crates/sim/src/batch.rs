@@ -4,7 +4,7 @@
 //! so a trajectory depends only on the seed and the commands, never on the number of threads
 //! or on which thread ran an env. Stepping writes into preallocated state buffers; the only
 //! allocations are rapier's internal buffers, which reach their steady size in the first steps,
-//! and resets, which rebuild a world.
+//! and resets, which copy each world's template back (see [`Env::reset`]).
 
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::UnitCommand;
@@ -164,11 +164,11 @@ impl BatchEnv {
                 .zip(states.par_iter_mut())
                 .zip(mask.par_iter())
                 .filter(|(_, reset)| **reset)
-                .try_for_each(|((env, state), _)| {
-                    env.reset(scene)?;
+                .for_each(|((env, state), _)| {
+                    env.reset();
                     env.state_into(scene, state);
-                    Ok(())
                 })
-        })
+        });
+        Ok(())
     }
 }

@@ -234,9 +234,10 @@ pub struct Env {
     draw: EpisodeDraw,
     noise: CommandNoise,
     rng: ChaCha8Rng,
-    options: EnvOptions,
     /// rapier pipeline steps since the episode started.
     pipeline_steps: u64,
+    /// The world as built, restored at reset.
+    template: Box<world::Template>,
 }
 
 impl Env {

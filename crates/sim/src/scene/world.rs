@@ -38,13 +38,30 @@ impl Env {
         Ok(env)
     }
 
-    /// Starts a new episode, drawing from this env's own random stream.
-    pub fn reset(&mut self, scene: &SceneModel) -> Result<(), SimError> {
-        let mut rng = self.rng.clone();
-        let mut env = Self::build(scene, &mut rng, self.options)?;
-        env.rng = rng;
-        *self = env;
-        Ok(())
+    /// Starts a new episode by restoring the world as it was built: settled, grasped, at
+    /// time zero. Costs a copy of rapier's sets instead of a rebuild (terrain, IK, 0.25 s of
+    /// settling), so a reset is cheaper than a control step.
+    ///
+    /// The world-level draws — terrain, wheel friction, payload kind and mass, initial joint
+    /// offsets — are therefore made once per env, when it is built (Isaac Lab's `startup`
+    /// randomization events); a batch of N envs trains on N different worlds and
+    /// [`crate::BatchEnv::reseed`] draws N new ones. What varies per episode is drawn by the
+    /// task (goals) and every step (command noise, from this env's stream, which a reset
+    /// does not rewind).
+    pub fn reset(&mut self) {
+        let t = &*self.template;
+        let w = &mut self.world;
+        w.islands.clone_from(&t.islands);
+        w.broad_phase.clone_from(&t.broad_phase);
+        w.narrow_phase.clone_from(&t.narrow_phase);
+        w.bodies.clone_from(&t.bodies);
+        w.colliders.clone_from(&t.colliders);
+        w.impulse_joints.clone_from(&t.impulse_joints);
+        w.multibody_joints.clone_from(&t.multibody_joints);
+        self.grasps = t.grasps;
+        self.grasp_state = t.grasp_state;
+        self.grasp_broken = false;
+        self.pipeline_steps = 0;
     }
 
     fn build(
@@ -181,8 +198,8 @@ impl Env {
             draw,
             noise,
             rng: ChaCha8Rng::seed_from_u64(0),
-            options,
             pipeline_steps: 0,
+            template: Box::default(),
         };
         // Everything drops the spawn clearance and settles on the terrain, arms holding their
         // start positions, before the grasps close: a grasp made in mid-air would take the
@@ -210,7 +227,41 @@ impl Env {
                 rb.set_body_type(RigidBodyType::Dynamic, true);
             }
         }
+        env.template = Box::new(Template::of(&env));
         Ok(env)
+    }
+}
+
+/// What [`Env::reset`] restores: the rapier data of the world as built, and its grasps. The
+/// heightfield is shared with the live world (rapier's shapes are reference counted); the
+/// pipelines are scratch space and stay with the world. Soft bodies and CCD are not used.
+#[derive(Clone, Default)]
+pub(super) struct Template {
+    islands: IslandManager,
+    broad_phase: DefaultBroadPhase,
+    narrow_phase: NarrowPhase,
+    bodies: RigidBodySet,
+    colliders: ColliderSet,
+    impulse_joints: ImpulseJointSet,
+    multibody_joints: MultibodyJointSet,
+    grasps: [Option<ImpulseJointHandle>; UNITS],
+    grasp_state: [GraspState; UNITS],
+}
+
+impl Template {
+    fn of(env: &Env) -> Self {
+        let w = &env.world;
+        Template {
+            islands: w.islands.clone(),
+            broad_phase: w.broad_phase.clone(),
+            narrow_phase: w.narrow_phase.clone(),
+            bodies: w.bodies.clone(),
+            colliders: w.colliders.clone(),
+            impulse_joints: w.impulse_joints.clone(),
+            multibody_joints: w.multibody_joints.clone(),
+            grasps: env.grasps,
+            grasp_state: env.grasp_state,
+        }
     }
 }
 
