@@ -417,3 +417,43 @@ fn insert_unit(
         arm,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::SimConfig;
+
+    /// The unit's joint-space inertia as rapier (with vendor/rapier3d's mass-matrix patch)
+    /// assembles it, against MuJoCo 4.0's on the same URDF: `1/(M⁻¹)ᵢᵢ` of each arm DoF at the
+    /// grasp configuration, free base included, payload not (`mj_solveM`, printed by
+    /// `../shared/bench/mujoco/mj_behave.py` for unit 0, kg·m²).
+    #[test]
+    fn arm_inertia_matches_mujoco() {
+        const MUJOCO_M_EFF: [f64; ARM_JOINTS] =
+            [0.6635, 1.0127, 0.2499, 0.3147, 0.0247, 0.0215, 0.0020];
+        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
+        let options = EnvOptions {
+            randomize: false,
+            ..EnvOptions::default()
+        };
+        let mut env = Env::new(&scene, 0, options).unwrap();
+        let world = &mut env.world;
+        let (multibody, _) = world
+            .multibody_joints
+            .get_mut(env.units[0].arm[0])
+            .unwrap();
+        let inverse = multibody.dof_inverse_inertia(&world.bodies);
+        let multibody = &world.multibody_joints.get(env.units[0].arm[0]).unwrap().0;
+        for (j, (&handle, mujoco)) in env.units[0].arm.iter().zip(MUJOCO_M_EFF).enumerate() {
+            let link = world.multibody_joints.get(handle).unwrap().1;
+            let dof = multibody.link(link).unwrap().assembly_id();
+            let m_eff = 1.0 / inverse[dof] as f64;
+            let error = (m_eff - mujoco).abs() / mujoco;
+            assert!(
+                error < 0.02,
+                "arm joint {}: rapier {m_eff:.4} kg m², MuJoCo {mujoco:.4}",
+                j + 1
+            );
+        }
+    }
+}
