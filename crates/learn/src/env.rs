@@ -107,6 +107,12 @@ pub trait VecEnv {
     /// Advances every env by one control step with `actions` (`[num_envs * action_dim]`),
     /// auto-resetting finished episodes as described in the [module docs](self).
     fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError>;
+
+    /// The physics' share of the step time since the last call, s, for envs that simulate
+    /// (`None`: no simulator to separate from the task, as Pendulum's closed form).
+    fn take_physics_s(&mut self) -> Option<f64> {
+        None
+    }
 }
 
 /// Checks a flat batch's length: shared by every [`VecEnv`] implementation.

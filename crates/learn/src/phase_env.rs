@@ -13,6 +13,8 @@
 //! reward held until the time limit, `r · (1 − γ^k)/(1 − γ)` for the k steps left: failing is
 //! worth what staying in the failed state would have cost, no more and no less.
 
+use std::time::Instant;
+
 use moonhaul_core::observation::ACTOR_OBS_DIM;
 use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
@@ -35,6 +37,8 @@ struct World {
     final_critic: [[f64; CRITIC_OBS_DIM]; UNITS],
     reward: f64,
     outcome: StepOutcome,
+    /// CPU time of this step's physics and of the rest of its step (task), s.
+    cpu_s: [f64; 2],
 }
 
 /// What the reward sees of the payload (privileged truth).
@@ -84,6 +88,8 @@ pub struct PhaseVecEnv {
     reward: RewardConfig,
     gamma: f64,
     worlds: Vec<World>,
+    /// Physics' share of the step wall time since [`VecEnv::take_physics_s`], s.
+    physics_s: f64,
 }
 
 impl PhaseVecEnv {
@@ -112,6 +118,7 @@ impl PhaseVecEnv {
             reward,
             gamma,
             worlds: Vec::with_capacity(worlds),
+            physics_s: 0.0,
         };
         env.begin_all(0)?;
         Ok(env)
@@ -147,6 +154,7 @@ impl PhaseVecEnv {
                     terminated: None,
                     truncated: false,
                 },
+                cpu_s: [0.0; 2],
             };
             observe(&self.task, scene, env, state, &mut world)?;
             worlds.push(world);
@@ -260,6 +268,10 @@ impl VecEnv for PhaseVecEnv {
         Ok(())
     }
 
+    fn take_physics_s(&mut self) -> Option<f64> {
+        Some(std::mem::take(&mut self.physics_s))
+    }
+
     fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
         let rows = self.num_envs();
         check_len("actions", actions, rows * UNIT_ACTION_DIM)?;
@@ -272,40 +284,28 @@ impl VecEnv for PhaseVecEnv {
             }
         }
         let (task, reward, gamma) = (&self.task, &self.reward, self.gamma);
+        let parallel_start = Instant::now();
         self.batch
             .for_each_with(&mut self.worlds, |scene, env, state, world| {
+                let start = Instant::now();
                 env.step(scene, &world.commands);
                 env.state_into(scene, state);
-                world.outcome = world
-                    .episode
-                    .advance(task, scene, env, state, &mut world.rng);
-                let r = if world.outcome.terminated
-                    == Some(moonhaul_sim::task::Termination::NonFinite)
-                {
-                    // A diverged world has no meaningful reward; the last finite one stands.
-                    world.reward
-                } else {
-                    phase_reward(reward, task, scene, env, &world.episode, state)
-                };
-                world.reward = if world.outcome.terminated.is_some() {
-                    let left = task.max_steps().saturating_sub(world.episode.steps()) as i32;
-                    r * (1.0 - gamma.powi(left.max(1))) / (1.0 - gamma)
-                } else {
-                    r
-                };
-                if world.outcome.terminated.is_some() || world.outcome.truncated {
-                    if world.outcome.terminated != Some(moonhaul_sim::task::Termination::NonFinite)
-                    {
-                        observe(task, scene, env, state, world)?;
-                    }
-                    world.final_obs = world.obs;
-                    world.final_critic = world.critic;
-                    env.reset();
-                    env.state_into(scene, state);
-                    world.episode = task.begin(scene, env, state, &mut world.rng)?;
-                }
-                observe(task, scene, env, state, world)
+                let physics_end = Instant::now();
+                world.cpu_s[0] = (physics_end - start).as_secs_f64();
+                let result = task_step(task, reward, gamma, scene, env, state, world);
+                world.cpu_s[1] = physics_end.elapsed().as_secs_f64();
+                result
             })?;
+        // The workers' CPU split applied to the parallel section's wall time: what the
+        // physics cost this step with the task's work beside it on the same threads.
+        let parallel_s = parallel_start.elapsed().as_secs_f64();
+        let [physics, rest] = self
+            .worlds
+            .iter()
+            .fold([0.0; 2], |[p, r], w| [p + w.cpu_s[0], r + w.cpu_s[1]]);
+        if physics + rest > 0.0 {
+            self.physics_s += parallel_s * physics / (physics + rest);
+        }
         self.write_rows(&mut out.obs, &mut out.critic_obs);
         for (w, world) in self.worlds.iter().enumerate() {
             let ended = world.outcome.terminated.is_some() || world.outcome.truncated;
@@ -324,4 +324,43 @@ impl VecEnv for PhaseVecEnv {
         }
         Ok(())
     }
+}
+
+/// The task's half of one world's step, after the physics: outcome, reward (with a
+/// termination charged the discounted cost of staying failed), auto-reset, observation.
+fn task_step(
+    task: &PhaseTask,
+    reward: &RewardConfig,
+    gamma: f64,
+    scene: &SceneModel,
+    env: &mut Env,
+    state: &mut EnvState,
+    world: &mut World,
+) -> Result<(), SimError> {
+    world.outcome = world
+        .episode
+        .advance(task, scene, env, state, &mut world.rng);
+    let r = if world.outcome.terminated == Some(moonhaul_sim::task::Termination::NonFinite) {
+        // A diverged world has no meaningful reward; the last finite one stands.
+        world.reward
+    } else {
+        phase_reward(reward, task, scene, env, &world.episode, state)
+    };
+    world.reward = if world.outcome.terminated.is_some() {
+        let left = task.max_steps().saturating_sub(world.episode.steps()) as i32;
+        r * (1.0 - gamma.powi(left.max(1))) / (1.0 - gamma)
+    } else {
+        r
+    };
+    if world.outcome.terminated.is_some() || world.outcome.truncated {
+        if world.outcome.terminated != Some(moonhaul_sim::task::Termination::NonFinite) {
+            observe(task, scene, env, state, world)?;
+        }
+        world.final_obs = world.obs;
+        world.final_critic = world.critic;
+        env.reset();
+        env.state_into(scene, state);
+        world.episode = task.begin(scene, env, state, &mut world.rng)?;
+    }
+    observe(task, scene, env, state, world)
 }

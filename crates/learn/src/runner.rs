@@ -37,6 +37,27 @@ pub struct IterationStats {
     /// Learning rate after the update.
     pub lr: f64,
     pub steps_per_s: f64,
+    pub timing: IterationTiming,
+}
+
+/// Where one iteration's wall time went, s.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct IterationTiming {
+    /// The rollout: acting, stepping the envs, storing transitions.
+    pub rollout_s: f64,
+    /// Of the rollout, stepping the envs (with the tensor conversions to and from them).
+    pub env_s: f64,
+    /// Of `env_s`, the physics, where the env separates it ([`VecEnv::take_physics_s`]).
+    pub physics_s: Option<f64>,
+    /// The PPO update (returns, advantages and the gradient steps).
+    pub update_s: f64,
+}
+
+impl IterationTiming {
+    /// Sampling actions and values, normalizer updates and storage: the rollout less the envs.
+    pub fn act_s(&self) -> f64 {
+        self.rollout_s - self.env_s
+    }
 }
 
 /// Running sums of the episodes in progress and a window of finished ones.
@@ -277,20 +298,33 @@ impl Runner {
     /// One rollout and one PPO update.
     pub fn iterate(&mut self) -> Result<IterationStats, LearnError> {
         let start = Instant::now();
+        let mut env_s = 0.0;
+        self.env.take_physics_s();
         for _ in 0..self.steps_per_env {
             let (env, buf, episodes) = (&mut self.env, &mut self.buf, &mut self.episodes);
             let reward_scale = self.reward_scale;
             let answer = self
                 .ppo
                 .act_and_store(&self.obs, &self.critic_obs, |actions| {
+                    let env_start = Instant::now();
                     let answer = step_env(env.as_mut(), buf, actions, reward_scale)?;
                     episodes.record(buf);
+                    env_s += env_start.elapsed().as_secs_f64();
                     Ok(answer)
                 })?;
             self.obs = answer.next_obs;
             self.critic_obs = answer.next_critic_obs;
         }
+        let rollout_s = start.elapsed().as_secs_f64();
+        let physics_s = self.env.take_physics_s();
+        let update_start = Instant::now();
         let update = self.ppo.update(&self.critic_obs)?;
+        let timing = IterationTiming {
+            rollout_s,
+            env_s,
+            physics_s,
+            update_s: update_start.elapsed().as_secs_f64(),
+        };
         let samples = (self.env.num_envs() * self.steps_per_env) as u64;
         self.progress.iteration += 1;
         self.progress.env_steps += samples;
@@ -303,6 +337,7 @@ impl Runner {
             mean_std: self.ppo.policy().std().mean(Kind::Float).double_value(&[]),
             lr: self.ppo.learning_rate(),
             steps_per_s: samples as f64 / start.elapsed().as_secs_f64(),
+            timing,
         })
     }
 
