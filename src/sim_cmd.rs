@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use moonhaul_core::state::{Phase, UnitCommand};
+use moonhaul_core::state::{Phase, UnitCommand, ARM_JOINTS};
 use moonhaul_sim::accuracy;
 use moonhaul_sim::scene::UNITS;
 use moonhaul_sim::scripted::{run_mission, MissionPlan, ScriptedController};
@@ -64,6 +64,11 @@ pub enum SimCommand {
         /// Scripted mission plan.
         #[arg(long, default_value = "configs/mission.toml")]
         mission: PathBuf,
+        /// Replay these commands instead of the scripted mission's: a JSON object whose
+        /// `commands` holds one `[[wheel_l, wheel_r, q1..q7], [..]]` pair per control step (the
+        /// format of bench/mujoco/plan.json, which the MuJoCo benchmark replays).
+        #[arg(long, value_name = "FILE")]
+        plan: Option<PathBuf>,
     },
 }
 
@@ -84,7 +89,16 @@ pub fn run(cmd: SimCommand) -> Result<()> {
             steps,
             config,
             mission,
-        } => bench(json, envs, threads, steps, &config, &mission),
+            plan,
+        } => bench(
+            json,
+            envs,
+            threads,
+            steps,
+            &config,
+            &mission,
+            plan.as_deref(),
+        ),
     }
 }
 
@@ -304,6 +318,49 @@ fn scripted_commands(
     Ok(commands)
 }
 
+/// Largest plan file read, bytes: 10⁶ steps of two 9-number commands are ~400 MB of JSON.
+const MAX_PLAN_BYTES: u64 = 512 << 20;
+
+/// The first `steps` commands of a plan file (see `Bench::plan`); every error names the file
+/// and, for a bad command, its step and unit.
+fn plan_commands(path: &Path, steps: usize) -> Result<Vec<[UnitCommand; UNITS]>> {
+    #[derive(serde::Deserialize)]
+    struct Plan {
+        commands: Vec<[[f64; 2 + ARM_JOINTS]; UNITS]>,
+    }
+    let name = path.display();
+    let size = std::fs::metadata(path)
+        .with_context(|| format!("cannot read plan {name}"))?
+        .len();
+    if size > MAX_PLAN_BYTES {
+        bail!("plan {name} is {size} bytes, more than the {MAX_PLAN_BYTES} a plan may have");
+    }
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read plan {name}"))?;
+    let plan: Plan = serde_json::from_str(&text)
+        .with_context(|| format!("plan {name} is not a command plan"))?;
+    if plan.commands.len() < steps {
+        bail!(
+            "plan {name} has {} commands, fewer than --steps {steps}",
+            plan.commands.len()
+        );
+    }
+    plan.commands[..steps]
+        .iter()
+        .enumerate()
+        .map(|(step, pair)| {
+            let mut out = [UnitCommand::default(); UNITS];
+            for (unit, (command, values)) in out.iter_mut().zip(pair).enumerate() {
+                if let Some(bad) = values.iter().position(|v| !v.is_finite()) {
+                    bail!("plan {name}: commands[{step}][{unit}][{bad}] is not finite");
+                }
+                command.wheel_velocity_radps = [values[0], values[1]];
+                command.arm_position_rad.copy_from_slice(&values[2..]);
+            }
+            Ok(out)
+        })
+        .collect()
+}
+
 /// Median costs of one env on the calling thread, s.
 struct ResetCost {
     /// [`Env::reset`]: restoring the built world.
@@ -387,12 +444,16 @@ fn bench(
     steps: usize,
     config: &Path,
     mission: &Path,
+    plan_file: Option<&Path>,
 ) -> Result<()> {
     check_bench_args(envs, threads, steps)?;
     let scene = load_scene(config)?;
     let mission = load_mission(mission)?;
     let decimation = scene.decimation() as f64;
-    let plan = scripted_commands(&scene, mission, steps)?;
+    let plan = match plan_file {
+        Some(path) => plan_commands(path, steps)?,
+        None => scripted_commands(&scene, mission, steps)?,
+    };
     let first = *plan
         .first()
         .context("the scripted mission gave no commands")?;

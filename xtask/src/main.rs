@@ -4,6 +4,7 @@
 //! - `cargo xtask test`  — every test in the workspace.
 //! - `cargo xtask setup` — only the set-up both of them do first.
 //! - `cargo xtask train-all` — retrain the bundled phase policies from scratch.
+//! - `cargo xtask bench [ARGS…]` — moonhaul beside MuJoCo and rsl_rl, alternating, as ratios.
 //! - `cargo xtask cargo ARGS…` — any cargo command with libtorch configured (clippy, bench, run).
 //!
 //! Set-up means libtorch for `moonhaul-learn`: PyTorch from PyPI (the exact version `tch`
@@ -21,7 +22,7 @@ use std::process::{Command, ExitCode};
 /// The PyTorch release `tch` 0.26 is built against.
 const TORCH_VERSION: &str = "2.13.0";
 
-const USAGE: &str = "usage: cargo xtask <demo|test|setup|cargo ARGS...>
+const USAGE: &str = "usage: cargo xtask <demo|test|setup|train-all|bench|cargo ARGS...>
 
   demo          run the main job: lift, transport and place a payload in simulation with
                 two wheel-arm units, and bring up a unit's CAN drives (emulated); see runs/demo/
@@ -30,6 +31,10 @@ const USAGE: &str = "usage: cargo xtask <demo|test|setup|cargo ARGS...>
   train-all     retrain the bundled policies from scratch: lift, transport and place with
                 configs/train/<phase>.toml into runs/<phase>/, then copy each policy and
                 its training curve to assets/policies/
+  bench [ARGS]  the side-by-side benchmark: the simulator against MuJoCo and the PPO update
+                and act against rsl_rl 5.5.1, alternating, printing the ratios (installs
+                mujoco and rsl_rl into a separate venv, MOONHAUL_BENCH_VENV or .venv-bench;
+                ARGS go to bench/side_by_side.py, e.g. --rounds 5 --only sim)
   cargo ARGS    run any cargo command with libtorch configured, e.g.
                 `cargo xtask cargo clippy --workspace --all-targets -- -D warnings`";
 
@@ -40,6 +45,7 @@ fn main() -> ExitCode {
         Some("test") => test(&args[1..]),
         Some("setup") => setup().map(|_| ()),
         Some("train-all") => train_all(),
+        Some("bench") => bench(&args[1..]),
         Some("cargo") => setup().and_then(|venv| cargo(&venv, &args[1..])),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
@@ -74,37 +80,49 @@ fn venv_dir() -> PathBuf {
         .unwrap_or_else(|| workspace_root().join(".venv"))
 }
 
-/// Creates the venv and installs PyTorch unless a previous run completed it (a stamp file is
-/// written only after pip succeeded, so an interrupted install is retried).
+/// Creates the venv and installs PyTorch unless a previous run completed it.
 fn setup() -> Result<PathBuf, String> {
     let venv = venv_dir();
+    let torch = format!("torch=={TORCH_VERSION}");
+    ensure_venv(
+        &venv,
+        &[&torch],
+        &format!(".moonhaul-torch-{TORCH_VERSION}"),
+    )?;
+    Ok(venv)
+}
+
+/// Creates `venv` and pip-installs `packages` unless a previous run completed exactly that: the
+/// `stamp` file, holding the package list, is written only after pip succeeded, so an
+/// interrupted install is retried and a changed list reinstalled.
+fn ensure_venv(venv: &Path, packages: &[&str], stamp: &str) -> Result<(), String> {
     let python = venv.join("bin").join("python");
-    let stamp = venv.join(format!(".moonhaul-torch-{TORCH_VERSION}"));
-    if stamp.exists() {
-        return Ok(venv);
+    let stamp = venv.join(stamp);
+    let wanted = packages.join(" ");
+    if std::fs::read_to_string(&stamp).is_ok_and(|s| s.trim() == wanted) {
+        return Ok(());
     }
     if !python.exists() {
         eprintln!("xtask: creating Python venv at {}", venv.display());
-        run(Command::new("python3").arg("-m").arg("venv").arg(&venv)).map_err(|e| {
+        run(Command::new("python3").arg("-m").arg("venv").arg(venv)).map_err(|e| {
             format!("{e}\n(needs python3 with the venv module; on Debian: apt-get install python3-venv)")
         })?;
     }
     eprintln!(
-        "xtask: installing torch=={TORCH_VERSION} from PyPI into {} (once; several GB)",
+        "xtask: installing {wanted} from PyPI into {} (once; several GB)",
         venv.display()
     );
-    run(Command::new(&python).args([
-        "-m",
-        "pip",
-        "install",
-        "--disable-pip-version-check",
-        "--progress-bar",
-        "off",
-        &format!("torch=={TORCH_VERSION}"),
-    ]))?;
-    std::fs::write(&stamp, TORCH_VERSION)
-        .map_err(|e| format!("cannot write {}: {e}", stamp.display()))?;
-    Ok(venv)
+    run(Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--disable-pip-version-check",
+            "--progress-bar",
+            "off",
+        ])
+        .args(packages))?;
+    std::fs::write(&stamp, &wanted).map_err(|e| format!("cannot write {}: {e}", stamp.display()))
 }
 
 /// A `cargo` command with the environment torch-sys needs to find the venv's libtorch.
@@ -236,6 +254,46 @@ fn train_all() -> Result<(), String> {
         eprintln!("xtask: {phase} policy bundled in {}", assets.display());
     }
     Ok(())
+}
+
+/// The yardsticks of `cargo xtask bench`, pinned: the versions the issue measured against.
+const BENCH_PACKAGES: [&str; 4] = [
+    "torch==2.13.0",
+    "rsl-rl-lib==5.5.1",
+    "mujoco==4.0.0",
+    "numpy==2.4.6",
+];
+
+/// Builds both sides, prepares the yardsticks' venv, and runs bench/side_by_side.py.
+fn bench(extra: &[String]) -> Result<(), String> {
+    let venv = setup()?;
+    let bench_venv = env::var_os("MOONHAUL_BENCH_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join(".venv-bench"));
+    ensure_venv(&bench_venv, &BENCH_PACKAGES, ".moonhaul-bench")?;
+    // Compile first, so no round times a build.
+    run(cargo_command(&venv).args(["build", "--release", "--package", "moonhaul"]))?;
+    run(cargo_command(&venv).args([
+        "bench",
+        "--no-run",
+        "--package",
+        "moonhaul-learn",
+        "--bench",
+        "ppo",
+    ]))?;
+    let python = bench_venv.join("bin").join("python");
+    // The script runs cargo for our side: give it the environment libtorch needs.
+    run(Command::new(&python)
+        .current_dir(workspace_root())
+        .envs(
+            cargo_command(&venv)
+                .get_envs()
+                .filter_map(|(k, v)| Some((k, v?))),
+        )
+        .arg("bench/side_by_side.py")
+        .arg("--python")
+        .arg(&python)
+        .args(extra))
 }
 
 fn run(command: &mut Command) -> Result<(), String> {

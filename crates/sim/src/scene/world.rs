@@ -438,10 +438,7 @@ mod tests {
         };
         let mut env = Env::new(&scene, 0, options).unwrap();
         let world = &mut env.world;
-        let (multibody, _) = world
-            .multibody_joints
-            .get_mut(env.units[0].arm[0])
-            .unwrap();
+        let (multibody, _) = world.multibody_joints.get_mut(env.units[0].arm[0]).unwrap();
         let inverse = multibody.dof_inverse_inertia(&world.bodies);
         let multibody = &world.multibody_joints.get(env.units[0].arm[0]).unwrap().0;
         for (j, (&handle, mujoco)) in env.units[0].arm.iter().zip(MUJOCO_M_EFF).enumerate() {
