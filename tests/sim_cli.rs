@@ -256,3 +256,65 @@ fn demo_rejects_a_bad_seed_by_name() {
         );
     }
 }
+
+#[test]
+fn bench_replays_a_plan_file_and_names_a_bad_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, text: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        path.to_str().unwrap().to_owned()
+    };
+    let command = "[0.1, -0.1, -1.13, -1.80, -0.58, 1.28, 0.52, 1.26, -2.67]";
+    let good = write(
+        "plan.json",
+        &format!(r#"{{"commands": [[{command}, {command}], [{command}, {command}]]}}"#),
+    );
+    let bench = |plan: &str, steps: &str| {
+        vec![
+            "sim",
+            "bench",
+            "--json",
+            "--envs",
+            "1",
+            "--threads",
+            "1",
+            "--steps",
+            steps,
+            "--config",
+            CONFIG,
+            "--plan",
+        ]
+        .into_iter()
+        .map(str::to_owned)
+        .chain([plan.to_owned()])
+        .collect::<Vec<_>>()
+    };
+    let args = bench(&good, "2");
+    let text = stdout(&moonhaul(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+    ));
+    let value: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+    assert!(value["control_steps_per_s"].as_f64().unwrap() > 0.0);
+    assert!(value["reset_s"].as_f64().unwrap() > 0.0);
+    assert!(value["rebuild_s"].as_f64().unwrap() > value["reset_s"].as_f64().unwrap());
+
+    let run = |args: Vec<String>, needle: &str| {
+        fails_naming(&args.iter().map(String::as_str).collect::<Vec<_>>(), needle)
+    };
+    run(bench(&good, "3"), "fewer than --steps 3");
+    let short = write(
+        "short.json",
+        &format!(r#"{{"commands": [[{command}, [1, 2]]]}}"#),
+    );
+    run(bench(&short, "1"), "short.json");
+    let nan = write(
+        "nan.json",
+        r#"{"commands": [[[0,0,0,0,0,0,0,0,0], [0,0,0,0,0,0,0,0,1e999]]]}"#,
+    );
+    run(bench(&nan, "1"), "nan.json");
+    run(
+        bench("/nonexistent/plan.json", "1"),
+        "/nonexistent/plan.json",
+    );
+}
