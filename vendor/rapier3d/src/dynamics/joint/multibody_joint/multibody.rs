@@ -54,9 +54,12 @@ fn concat_rb_mass_matrix(mass: Vector, inertia: Real) -> SMatrix<Real, SPATIAL_D
 struct LinkDofs(Vec<usize>);
 
 impl LinkDofs {
-    fn fill(&mut self, jacobian: &Jacobian<Real>) -> &[usize] {
+    fn fill<R: na::Dim, C: na::Dim, S: na::RawStorage<Real, R, C>>(
+        &mut self,
+        matrix: &na::Matrix<Real, R, C, S>,
+    ) -> &[usize] {
         self.0.clear();
-        for (c, column) in jacobian.column_iter().enumerate() {
+        for (c, column) in matrix.column_iter().enumerate() {
             if column.iter().any(|v| *v != 0.0) {
                 self.0.push(c);
             }
@@ -965,6 +968,11 @@ impl Multibody {
             let rb_j_w = rb_j.fixed_rows::<ANG_DIM>(DIM);
 
             let ndofs = link.joint.ndofs();
+            // moonhaul patch: links come parents first with increasing assembly ids, so the
+            // link's Jacobian and Coriolis terms are zero beyond its own DoFs: every product
+            // below runs over the first `hi` columns only.
+            let hi = link.assembly_id + ndofs;
+            let rb_j_w = rb_j_w.columns(0, hi);
 
             if i != 0 {
                 let parent_id = link.parent_internal_id;
@@ -972,6 +980,7 @@ impl Multibody {
                 let parent_rb = &bodies[parent_link.rigid_body];
                 let parent_j = &self.body_jacobians[parent_id];
                 let parent_j_w = parent_j.fixed_rows::<ANG_DIM>(DIM);
+                let parent_j_w = parent_j_w.columns(0, hi);
                 let parent_w = SimdAngVector::<Real>::from(parent_rb.vels.angvel).gcross_matrix();
 
                 let (coriolis_v, parent_coriolis_v) = self.coriolis_v.index_mut2(i, parent_id);
@@ -979,31 +988,33 @@ impl Multibody {
 
                 coriolis_v.copy_from(parent_coriolis_v);
                 coriolis_w.copy_from(parent_coriolis_w);
+                let mut coriolis_v_hi = coriolis_v.columns_mut(0, hi);
 
                 // [c1 - c0].gcross() * (JDot + JDot/u * qdot)"
                 let shift_cross_tr = vect_to_na(link.shift02).gcross_matrix_tr();
-                coriolis_v.gemm(1.0, &shift_cross_tr, parent_coriolis_w, 1.0);
+                coriolis_v_hi.gemm(1.0, &shift_cross_tr, &parent_coriolis_w.columns(0, hi), 1.0);
 
                 // JDot (but the 2.0 originates from the sum of two identical terms in JDot and JDot/u * gdot)
                 let dvel_cross = vect_to_na(
                     rb.vels.angvel.gcross(link.shift02) + 2.0 * link.joint_velocity.linvel,
                 )
                 .gcross_matrix_tr();
-                coriolis_v.gemm(1.0, &dvel_cross, &parent_j_w, 1.0);
-
                 // JDot/u * qdot
-                coriolis_v.gemm(
+                let lin_cross = vect_to_na(link.joint_velocity.linvel).gcross_matrix_tr();
+                // moonhaul patch: the three products with `parent_j_w` as one.
+                coriolis_v_hi.gemm(
                     1.0,
-                    &vect_to_na(link.joint_velocity.linvel).gcross_matrix_tr(),
+                    &(dvel_cross + lin_cross + parent_w * shift_cross_tr),
                     &parent_j_w,
                     1.0,
                 );
-                coriolis_v.gemm(1.0, &(parent_w * shift_cross_tr), &parent_j_w, 1.0);
 
                 #[cfg(feature = "dim3")]
                 {
                     let vel_wrt_joint_w = vect_to_na(link.joint_velocity.angvel).gcross_matrix();
-                    coriolis_w.gemm(-1.0, &vel_wrt_joint_w, &parent_j_w, 1.0);
+                    coriolis_w
+                        .columns_mut(0, hi)
+                        .gemm(-1.0, &vel_wrt_joint_w, &parent_j_w, 1.0);
                 }
 
                 // JDot (but the 2.0 originates from the sum of two identical terms in JDot and JDot/u * gdot)
@@ -1037,21 +1048,18 @@ impl Multibody {
             let coriolis_w = &mut self.coriolis_w[i];
 
             {
+                let mut coriolis_v_hi = coriolis_v.columns_mut(0, hi);
                 // [c3 - c2].gcross() * (JDot + JDot/u * qdot)
                 let shift_cross_tr = vect_to_na(link.shift23).gcross_matrix_tr();
-                coriolis_v.gemm(1.0, &shift_cross_tr, coriolis_w, 1.0);
+                coriolis_v_hi.gemm(1.0, &shift_cross_tr, &coriolis_w.columns(0, hi), 1.0);
 
                 // JDot
                 let dvel_cross = vect_to_na(rb.vels.angvel.gcross(link.shift23)).gcross_matrix_tr();
-                coriolis_v.gemm(1.0, &dvel_cross, &rb_j_w, 1.0);
-
                 // JDot/u * qdot
-                coriolis_v.gemm(
-                    1.0,
-                    &(SimdAngVector::<Real>::from(rb.vels.angvel).gcross_matrix() * shift_cross_tr),
-                    &rb_j_w,
-                    1.0,
-                );
+                let w_shift =
+                    SimdAngVector::<Real>::from(rb.vels.angvel).gcross_matrix() * shift_cross_tr;
+                // moonhaul patch: the two products with `rb_j_w` as one.
+                coriolis_v_hi.gemm(1.0, &(dvel_cross + w_shift), &rb_j_w, 1.0);
             }
 
             let coriolis_v = &mut self.coriolis_v[i];
@@ -1062,7 +1070,8 @@ impl Multibody {
              */
             {
                 let mut i_coriolis_dt_v = self.i_coriolis_dt.fixed_rows_mut::<DIM>(0);
-                i_coriolis_dt_v.copy_from(coriolis_v);
+                let mut i_coriolis_dt_v = i_coriolis_dt_v.columns_mut(0, hi);
+                i_coriolis_dt_v.copy_from(&coriolis_v.columns(0, hi));
                 let rb_mass_dt = vect_to_na(rb_mass * dt);
                 i_coriolis_dt_v
                     .column_iter_mut()
@@ -1078,14 +1087,20 @@ impl Multibody {
             #[cfg(feature = "dim3")]
             {
                 let mut i_coriolis_dt_w = self.i_coriolis_dt.fixed_rows_mut::<ANG_DIM>(DIM);
-                i_coriolis_dt_w.gemm(dt, &mat_to_na(rb_inertia), coriolis_w, 0.0);
+                i_coriolis_dt_w.columns_mut(0, hi).gemm(
+                    dt,
+                    &mat_to_na(rb_inertia),
+                    &coriolis_w.columns(0, hi),
+                    0.0,
+                );
             }
 
             // moonhaul patch: `Jᵀ (I C dt)` on the rows of the link's nonzero Jacobian columns only.
             #[cfg(feature = "dim3")]
             {
                 let rows = self.link_dofs.fill(rb_j);
-                let columns = self.coriolis_dofs.fill(&self.i_coriolis_dt);
+                // Only the first `hi` columns of the shared workspace are this link's.
+                let columns = self.coriolis_dofs.fill(&self.i_coriolis_dt.columns(0, hi));
                 for &a in rows {
                     let ja = rb_j.fixed_view::<SPATIAL_DIM, 1>(0, a);
                     for &b in columns {
