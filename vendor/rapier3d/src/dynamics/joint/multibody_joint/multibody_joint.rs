@@ -330,7 +330,10 @@ impl MultibodyJoint {
                     None
                 };
 
+                // moonhaul patch: the second constraint on this DoF reuses the first's vectors.
+                let mut first_j_id = None;
                 if (motor_bits & (1 << i)) != 0 {
+                    let at = *j_id;
                     joint::unit_joint_motor_constraint(
                         params,
                         multibody,
@@ -343,7 +346,9 @@ impl MultibodyJoint {
                         jacobians,
                         constraints,
                         &mut num_constraints,
+                        None,
                     );
+                    first_j_id = Some(at);
                 }
 
                 if (limit_bits & (1 << i)) != 0 {
@@ -359,6 +364,7 @@ impl MultibodyJoint {
                         constraints,
                         &mut num_constraints,
                         self.data.softness,
+                        first_j_id,
                     );
                 }
                 // Dry joint friction (MuJoCo `frictionloss`), keyed per-DoF on
@@ -399,8 +405,11 @@ impl MultibodyJoint {
         // TODO: we should make special cases for multi-angular-dofs limits/motors
         for i in DIM..SPATIAL_DIM {
             if (locked_bits & (1 << i)) == 0 {
+                // moonhaul patch: the second constraint on this DoF reuses the first's vectors.
+                let mut first_j_id = None;
                 let limits = if (limit_bits & (1 << i)) != 0 {
                     let limits = [self.data.limits[i].min, self.data.limits[i].max];
+                    first_j_id = Some(*j_id);
                     joint::unit_joint_limit_constraint(
                         params,
                         multibody,
@@ -413,6 +422,7 @@ impl MultibodyJoint {
                         constraints,
                         &mut num_constraints,
                         self.data.softness,
+                        None,
                     );
                     Some(limits)
                 } else {
@@ -432,6 +442,7 @@ impl MultibodyJoint {
                         jacobians,
                         constraints,
                         &mut num_constraints,
+                        first_j_id,
                     );
                 }
 

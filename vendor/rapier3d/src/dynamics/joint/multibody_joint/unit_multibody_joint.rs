@@ -20,6 +20,7 @@ pub fn unit_joint_limit_constraint(
     constraints: &mut [GenericJointConstraint],
     insert_at: &mut usize,
     softness: SpringCoefficients<Real>,
+    reuse: Option<usize>,
 ) {
     let ndofs = multibody.ndofs();
     let min_enabled = curr_pos < limits[0];
@@ -33,12 +34,7 @@ pub fn unit_joint_limit_constraint(
     let rhs_wo_bias = 0.0;
 
     let dof_j_id = *j_id + dof_id + link.assembly_id;
-    jacobians.rows_mut(*j_id, ndofs * 2).fill(0.0);
-    jacobians[dof_j_id] = 1.0;
-    jacobians[dof_j_id + ndofs] = 1.0;
-    multibody
-        .inv_augmented_mass()
-        .solve_mut(&mut jacobians.rows_mut(*j_id + ndofs, ndofs));
+    unit_jacobian(multibody, *j_id, dof_j_id, jacobians, reuse);
 
     let lhs = jacobians[dof_j_id + ndofs]; // = J^t * M^-1 J
     let impulse_bounds = [
@@ -147,18 +143,14 @@ pub fn unit_joint_motor_constraint(
     jacobians: &mut DVector,
     constraints: &mut [GenericJointConstraint],
     insert_at: &mut usize,
+    reuse: Option<usize>,
 ) {
     let inv_dt = params.inv_dt();
     let ndofs = multibody.ndofs();
     let motor_params = motor.motor_params(params.dt);
 
     let dof_j_id = *j_id + dof_id + link.assembly_id;
-    jacobians.rows_mut(*j_id, ndofs * 2).fill(0.0);
-    jacobians[dof_j_id] = 1.0;
-    jacobians[dof_j_id + ndofs] = 1.0;
-    multibody
-        .inv_augmented_mass()
-        .solve_mut(&mut jacobians.rows_mut(*j_id + ndofs, ndofs));
+    unit_jacobian(multibody, *j_id, dof_j_id, jacobians, reuse);
 
     let lhs = jacobians[dof_j_id + ndofs]; // = J^t * M^-1 J
     let impulse_bounds = [-motor_params.max_impulse, motor_params.max_impulse];
@@ -204,4 +196,30 @@ pub fn unit_joint_motor_constraint(
     *insert_at += 1;
 
     *j_id += 2 * ndofs;
+}
+
+/// moonhaul patch: writes at `j_id` the unit Jacobian of the DoF at `dof_j_id` and `M⁻¹` times
+/// it, or, with `reuse`, copies both from the block at that index: an earlier constraint of
+/// this step on the same DoF (a limit and a motor on one axis share the vectors), which saves
+/// one LU solve per such pair.
+fn unit_jacobian(
+    multibody: &Multibody,
+    j_id: usize,
+    dof_j_id: usize,
+    jacobians: &mut DVector,
+    reuse: Option<usize>,
+) {
+    let ndofs = multibody.ndofs();
+    if let Some(from) = reuse {
+        for k in 0..ndofs * 2 {
+            jacobians[j_id + k] = jacobians[from + k];
+        }
+        return;
+    }
+    jacobians.rows_mut(j_id, ndofs * 2).fill(0.0);
+    jacobians[dof_j_id] = 1.0;
+    jacobians[dof_j_id + ndofs] = 1.0;
+    multibody
+        .inv_augmented_mass()
+        .solve_mut(&mut jacobians.rows_mut(j_id + ndofs, ndofs));
 }
