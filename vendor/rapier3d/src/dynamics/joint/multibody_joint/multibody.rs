@@ -48,23 +48,25 @@ fn concat_rb_mass_matrix(mass: Vector, inertia: Real) -> SMatrix<Real, SPATIAL_D
 }
 
 
-/// moonhaul patch: the columns of a `6 × ndofs` matrix that are not all zero — for a link's body
-/// Jacobian, its ancestors' and its own DoFs — found in a reused buffer.
+/// moonhaul patch: per link, the DoFs its body Jacobian (and so its Coriolis terms) can have
+/// nonzero columns for: its ancestors' and its own, in increasing order. Every other column is
+/// exactly zero, so the products over these columns equal the dense ones. Buffers are reused.
 #[derive(Clone, Debug, Default)]
-struct LinkDofs(Vec<usize>);
+struct ChainDofs(Vec<Vec<usize>>);
 
-impl LinkDofs {
-    fn fill<R: na::Dim, C: na::Dim, S: na::RawStorage<Real, R, C>>(
-        &mut self,
-        matrix: &na::Matrix<Real, R, C, S>,
-    ) -> &[usize] {
-        self.0.clear();
-        for (c, column) in matrix.column_iter().enumerate() {
-            if column.iter().any(|v| *v != 0.0) {
-                self.0.push(c);
+impl ChainDofs {
+    fn update(&mut self, links: &MultibodyLinkVec) {
+        self.0.resize_with(links.len(), Vec::new);
+        for i in 0..links.len() {
+            let link = &links[i];
+            let (head, tail) = self.0.split_at_mut(i);
+            let dofs = &mut tail[0];
+            dofs.clear();
+            if i != 0 {
+                dofs.extend_from_slice(&head[link.parent_internal_id]);
             }
+            dofs.extend(link.assembly_id..link.assembly_id + link.joint.ndofs());
         }
-        &self.0
     }
 }
 
@@ -176,12 +178,9 @@ pub struct Multibody {
     coriolis_v: Vec<OMatrix<Real, Dim, Dyn>>,
     coriolis_w: Vec<OMatrix<Real, AngDim, Dyn>>,
     i_coriolis_dt: Jacobian<Real>,
-    /// moonhaul patch: scratch list of a link's nonzero Jacobian columns.
+    /// moonhaul patch: each link's chain of DoFs (see [`ChainDofs`]).
     #[cfg_attr(feature = "serde-serialize", serde(skip))]
-    link_dofs: LinkDofs,
-    /// moonhaul patch: scratch list of the nonzero columns of `i_coriolis_dt`.
-    #[cfg_attr(feature = "serde-serialize", serde(skip))]
-    coriolis_dofs: LinkDofs,
+    chain_dofs: ChainDofs,
 }
 impl Default for Multibody {
     fn default() -> Self {
@@ -215,8 +214,7 @@ impl Multibody {
             coriolis_v: Vec::new(),
             coriolis_w: Vec::new(),
             i_coriolis_dt: Jacobian::zeros(0),
-            link_dofs: LinkDofs::default(),
-            coriolis_dofs: LinkDofs::default(),
+            chain_dofs: ChainDofs::default(),
             root_is_dynamic: false,
             self_contacts_enabled,
             couplings: Vec::new(),
@@ -892,6 +890,8 @@ impl Multibody {
         }
 
         let mut curr_assembly_id = 0;
+        #[cfg(feature = "dim3")]
+        self.chain_dofs.update(&self.links);
 
         for i in 0..self.links.len() {
             let link = &self.links[i];
@@ -936,7 +936,7 @@ impl Multibody {
             // 6×6 quadforms over every DoF. Exact up to summation order.
             #[cfg(feature = "dim3")]
             {
-                let nonzero = self.link_dofs.fill(body_jacobian);
+                let nonzero = &self.chain_dofs.0[i];
                 add_link_mass(
                     &mut self.augmented_mass,
                     &mut self.acc_augmented_mass,
@@ -1098,10 +1098,9 @@ impl Multibody {
             // moonhaul patch: `Jᵀ (I C dt)` on the rows of the link's nonzero Jacobian columns only.
             #[cfg(feature = "dim3")]
             {
-                let rows = self.link_dofs.fill(rb_j);
-                // Only the first `hi` columns of the shared workspace are this link's.
-                let columns = self.coriolis_dofs.fill(&self.i_coriolis_dt.columns(0, hi));
-                for &a in rows {
+                // The shared workspace's columns beyond `hi` are stale, and not in the chain.
+                let columns = &self.chain_dofs.0[i];
+                for &a in columns {
                     let ja = rb_j.fixed_view::<SPATIAL_DIM, 1>(0, a);
                     for &b in columns {
                         let cb = self.i_coriolis_dt.fixed_view::<SPATIAL_DIM, 1>(0, b);
