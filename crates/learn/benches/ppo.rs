@@ -1,10 +1,28 @@
-//! PPO throughput at the paper's scale: a 4096-env × 24-step rollout with the [256, 128, 64]
-//! actor and critic, 80-dim observations and 18-dim actions, updated for 5 epochs × 4
-//! minibatches (configs/train/lift.toml), on 2 libtorch threads. Prints figures; asserts none.
-//! The critic reads the actor's observations (a symmetric critic, as the reference measured).
+//! PPO throughput at the lift task's sizes: our side of the PPO side-by-side benchmark against
+//! rsl_rl 5.5.1 (`bench/rsl_rl_ppo.py`, which takes the same flags and prints the same fields).
 //!
-//! Reference (this machine, 2 threads): rsl_rl 5.5.1 on torch 2.13 updates ~18,500 samples/s
-//! and needs ~17 ms per batched inference step over 4096 envs.
+//! ```text
+//! cargo xtask cargo bench -p moonhaul-learn --bench ppo -- [--config configs/train/lift.toml]
+//!     [--rows 4096] [--steps 24] [--obs 38] [--critic-obs 57] [--actions 9]
+//!     [--rounds 3] [--warmup 1] [--threads 2] [--seed 0] [--human]
+//! ```
+//!
+//! Networks, epochs, minibatches and every PPO hyperparameter come from the config (the lift
+//! config by default); rows, steps and widths are flags. Each round runs `steps` rollout steps on
+//! random observations and rewards, then one update, and prints one JSON line:
+//!
+//! - `update_samples_per_s`: rows × steps / the wall time of [`Ppo::update`] (last value, GAE,
+//!   epochs × minibatches gradient steps). rsl_rl's figure times `alg.update()` only; its
+//!   `compute_returns` (last value + GAE, a few ms) is outside it, and its normalizer refresh
+//!   inside it; ours refreshes the normalizers per rollout step instead (in `step_ms_per_step`).
+//! - `act_ms_per_step`: mean wall time of [`ActorCritic::act`] per step (actor and critic
+//!   forward with their normalizers, Gaussian sample, log-prob, mean and std): what rsl_rl's
+//!   `alg.act(obs)` computes.
+//! - `step_ms_per_step`: [`Ppo::act_and_store`] minus the environment's closure: act, the
+//!   normalizer updates and the storage add (rsl_rl: `alg.act` + `alg.process_env_step`).
+//!
+//! Asserts nothing; figures are only meaningful as ratios against the other side run
+//! alternately on the same machine.
 
 use std::time::Instant;
 
@@ -13,60 +31,140 @@ use moonhaul_learn::config::TrainConfig;
 use moonhaul_learn::ppo::{EnvAnswer, Ppo};
 use tch::{Device, Kind, Tensor};
 
-const ENVS: i64 = 4096;
-const STEPS: usize = 24;
-const OBS: i64 = 80;
-const ACTIONS: i64 = 18;
-const ROUNDS: usize = 3;
+struct Args {
+    config: String,
+    rows: i64,
+    steps: usize,
+    obs: i64,
+    critic_obs: i64,
+    actions: i64,
+    rounds: usize,
+    warmup: usize,
+    threads: i32,
+    seed: i64,
+    human: bool,
+}
+
+fn parse_args() -> Args {
+    let mut a = Args {
+        config: concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/train/lift.toml").into(),
+        rows: 4096,
+        steps: 24,
+        obs: 38,
+        critic_obs: 57,
+        actions: 9,
+        rounds: 3,
+        warmup: 1,
+        threads: 2,
+        seed: 0,
+        human: false,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().unwrap_or_else(|| panic!("{flag} needs a value"));
+        let num = |v: String| -> i64 { v.parse().unwrap_or_else(|_| panic!("bad number {v}")) };
+        match flag.as_str() {
+            // `cargo bench` passes `--bench` to harness-less benches.
+            "--bench" => {}
+            "--human" => a.human = true,
+            "--config" => a.config = value(),
+            "--rows" => a.rows = num(value()),
+            "--steps" => a.steps = num(value()) as usize,
+            "--obs" => a.obs = num(value()),
+            "--critic-obs" => a.critic_obs = num(value()),
+            "--actions" => a.actions = num(value()),
+            "--rounds" => a.rounds = num(value()) as usize,
+            "--warmup" => a.warmup = num(value()) as usize,
+            "--threads" => a.threads = num(value()) as i32,
+            "--seed" => a.seed = num(value()),
+            other => panic!("unknown flag {other} (see the doc comment of benches/ppo.rs)"),
+        }
+    }
+    a
+}
 
 fn main() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/train/lift.toml");
-    let mut config = TrainConfig::load(path).expect("configs/train/lift.toml");
-    config.policy.actor_hidden = vec![256, 128, 64];
-    config.policy.critic_hidden = vec![256, 128, 64];
-    tch::set_num_threads(2);
-    tch::manual_seed(0);
-    let policy = ActorCritic::new(OBS as usize, OBS as usize, ACTIONS as usize, &config.policy);
-    let mut ppo = Ppo::new(policy, config.ppo.clone(), STEPS, ENVS as usize);
-    let opts = (Kind::Float, Device::Cpu);
-    let samples = ENVS as f64 * STEPS as f64;
-    println!(
-        "PPO update: {ENVS} envs x {STEPS} steps, obs {OBS}, actions {ACTIONS}, nets [256,128,64], \
-         {} epochs x {} minibatches, 2 threads",
-        config.ppo.epochs, config.ppo.minibatches
+    let a = parse_args();
+    let config = TrainConfig::load(&a.config).expect("training config");
+    tch::set_num_threads(a.threads);
+    tch::manual_seed(a.seed);
+    let (n, steps) = (a.rows, a.steps);
+    let policy = ActorCritic::new(
+        a.obs as usize,
+        a.critic_obs as usize,
+        a.actions as usize,
+        &config.policy,
     );
-    let mut obs = Tensor::randn([ENVS, OBS], opts);
-    for round in 1..=ROUNDS {
-        let mut infer_s = 0.0;
-        for _ in 0..STEPS {
-            // Inference alone: actor + critic + sampling + log-prob over 4096 envs.
+    let mut ppo = Ppo::new(policy, config.ppo.clone(), steps, n as usize);
+    let opts = (Kind::Float, Device::Cpu);
+    if a.human {
+        eprintln!(
+            "# moonhaul: rows {n} x steps {steps}, obs {}, critic obs {}, actions {}, actor {:?} \
+             critic {:?}, {} epochs x {} minibatches, {} threads",
+            a.obs,
+            a.critic_obs,
+            a.actions,
+            config.policy.actor_hidden,
+            config.policy.critic_hidden,
+            config.ppo.epochs,
+            config.ppo.minibatches,
+            tch::get_num_threads()
+        );
+    }
+    let mut obs = Tensor::randn([n, a.obs], opts);
+    let mut critic_obs = Tensor::randn([n, a.critic_obs], opts);
+    for round in 0..a.warmup + a.rounds {
+        let (mut act_s, mut step_s) = (0.0, 0.0);
+        for _ in 0..steps {
             let t = Instant::now();
-            let sample = ppo.policy().act(&obs, &obs);
-            infer_s += t.elapsed().as_secs_f64();
+            let sample = ppo.policy().act(&obs, &critic_obs);
+            act_s += t.elapsed().as_secs_f64();
             drop(sample);
-            // Then the rollout step proper, filling the storage for the update.
+            let mut env_s = 0.0;
+            let t = Instant::now();
             let answer = ppo
-                .act_and_store(&obs, &obs, |_| {
-                    let next_obs = Tensor::randn([ENVS, OBS], opts);
-                    Ok(EnvAnswer {
-                        next_critic_obs: next_obs.shallow_clone(),
-                        next_obs,
-                        rewards: Tensor::randn([ENVS], opts),
-                        dones: Tensor::zeros([ENVS], opts),
+                .act_and_store(&obs, &critic_obs, |_| {
+                    let t = Instant::now();
+                    let answer = EnvAnswer {
+                        next_obs: Tensor::randn([n, a.obs], opts),
+                        next_critic_obs: Tensor::randn([n, a.critic_obs], opts),
+                        rewards: Tensor::randn([n], opts),
+                        dones: Tensor::zeros([n], opts),
                         time_outs: None,
-                    })
+                    };
+                    env_s = t.elapsed().as_secs_f64();
+                    Ok(answer)
                 })
                 .expect("rollout step");
+            step_s += t.elapsed().as_secs_f64() - env_s;
             obs = answer.next_obs;
+            critic_obs = answer.next_critic_obs;
         }
         let t = Instant::now();
-        let stats = ppo.update(&obs).expect("update");
+        let stats = ppo.update(&critic_obs).expect("update");
         let update_s = t.elapsed().as_secs_f64();
+        if round < a.warmup {
+            continue;
+        }
+        let samples = (n as usize * steps) as f64;
+        let (act_ms, step_ms) = (act_s * 1e3 / steps as f64, step_s * 1e3 / steps as f64);
         println!(
-            "round {round}: update {update_s:.2} s = {:.0} samples/s | inference {:.1} ms/step over {ENVS} envs | kl {:.4}",
+            "{{\"side\": \"moonhaul\", \"round\": {}, \"update_samples_per_s\": {:.1}, \
+             \"act_ms_per_step\": {act_ms:.3}, \"step_ms_per_step\": {step_ms:.3}, \
+             \"update_s\": {update_s:.4}, \"value_loss\": {}, \"learning_rate\": {}}}",
+            round - a.warmup + 1,
             samples / update_s,
-            infer_s * 1e3 / STEPS as f64,
-            stats.kl
+            stats.value_loss,
+            ppo.learning_rate()
         );
+        if a.human {
+            eprintln!(
+                "round {}: update {update_s:.2} s = {:.0} samples/s | act {act_ms:.1} ms/step, \
+                 act+store {step_ms:.1} ms/step over {n} rows | kl {:.4}",
+                round - a.warmup + 1,
+                samples / update_s,
+                stats.kl
+            );
+        }
     }
 }

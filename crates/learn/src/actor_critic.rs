@@ -206,31 +206,61 @@ impl ActorCritic {
 
     /// Samples actions for a rollout step from raw observations `[B, O]`, valued on the raw
     /// critic observations `[B, C]` of the same rows.
+    ///
+    /// The log-prob reads the `[A]` std and lets it broadcast, so `σ²` and `ln σ` are computed
+    /// on `A` values instead of `B·A` (the same numbers); only the returned `std` is expanded.
     pub fn act(&self, obs: &Tensor, critic_obs: &Tensor) -> Sample {
         tch::no_grad(|| {
             let mean = self.actor_mean(obs);
-            let std = self.std().expand_as(&mean);
+            let std = self.std();
             let actions = &mean + &std * mean.randn_like();
             let log_prob = gaussian::log_prob(&actions, &mean, &std);
             let values = self.critic_value(critic_obs);
             Sample {
+                std: std.expand_as(&mean),
                 actions,
                 log_prob,
                 values,
                 mean,
-                std,
             }
         })
     }
 
     /// Log-probabilities, entropy and values of a minibatch, with gradient.
     pub fn evaluate(&self, obs: &Tensor, critic_obs: &Tensor, actions: &Tensor) -> Evaluation {
-        let mean = self.actor_mean(obs);
+        self.evaluate_normalized(
+            &normalize(self.obs_normalizer.as_ref(), obs),
+            &normalize(self.critic_obs_normalizer.as_ref(), critic_obs),
+            actions,
+        )
+    }
+
+    /// The actor's normalizer applied to raw observations `[B, O]` (identity without one).
+    pub fn normalize_obs(&self, obs: &Tensor) -> Tensor {
+        tch::no_grad(|| normalize(self.obs_normalizer.as_ref(), obs))
+    }
+
+    /// The critic's normalizer applied to raw critic observations `[B, C]`.
+    pub fn normalize_critic_obs(&self, critic_obs: &Tensor) -> Tensor {
+        tch::no_grad(|| normalize(self.critic_obs_normalizer.as_ref(), critic_obs))
+    }
+
+    /// [`ActorCritic::evaluate`] on observations already passed through
+    /// [`ActorCritic::normalize_obs`] and [`ActorCritic::normalize_critic_obs`]: the PPO update
+    /// normalizes the whole rollout once (the statistics are fixed during an update) instead of
+    /// every minibatch of every epoch.
+    pub fn evaluate_normalized(
+        &self,
+        obs: &Tensor,
+        critic_obs: &Tensor,
+        actions: &Tensor,
+    ) -> Evaluation {
+        let mean = self.actor.forward(obs);
         let std = self.std();
         Evaluation {
             log_prob: gaussian::log_prob(actions, &mean, &std),
             entropy: gaussian::entropy(&std),
-            values: self.critic_value(critic_obs),
+            values: self.critic.forward(critic_obs).squeeze_dim(-1),
             mean,
             std,
         }

@@ -52,18 +52,23 @@ impl Mlp {
 }
 
 impl Module for Mlp {
+    /// ELU runs in place on each hidden layer's linear output (`elu_`): one activation-sized
+    /// allocation less per layer, and autograd then differentiates ELU through its result
+    /// (`grad · (y + α)` where `y < 0`) instead of recomputing `exp` of the input, which was a
+    /// visible share of the backward pass. The linear layer (`addmm`) keeps its inputs, not its
+    /// output, for backward, so overwriting the output is safe. Same values as `elu()` forward;
+    /// the gradient equals rsl_rl's up to float rounding of `α·eˣ` versus `y + α`.
     fn forward(&self, xs: &Tensor) -> Tensor {
         let last = self.layers.len() - 1;
         self.layers
             .iter()
             .enumerate()
             .fold(xs.shallow_clone(), |x, (i, layer)| {
-                let y = layer.forward(&x);
+                let mut y = layer.forward(&x);
                 if i < last {
-                    y.elu()
-                } else {
-                    y
+                    let _ = y.elu_();
                 }
+                y
             })
     }
 }

@@ -11,22 +11,37 @@ pub const EPS: f64 = 1e-2;
 pub struct EmpiricalNormalizer {
     mean: Tensor,
     var: Tensor,
+    /// `√var + ε`, recomputed when the statistics change rather than on every
+    /// [`EmpiricalNormalizer::normalize`]: the rollout normalizes twice per step and the update
+    /// once per minibatch, while the statistics change once per step.
+    std: Tensor,
     count: i64,
+}
+
+fn std_of(var: &Tensor) -> Tensor {
+    var.sqrt() + EPS
 }
 
 impl EmpiricalNormalizer {
     /// Identity statistics (mean 0, variance 1) for `dim` features.
     pub fn new(dim: i64) -> Self {
+        let var = Tensor::ones([dim], (Kind::Float, tch::Device::Cpu));
         EmpiricalNormalizer {
             mean: Tensor::zeros([dim], (Kind::Float, tch::Device::Cpu)),
-            var: Tensor::ones([dim], (Kind::Float, tch::Device::Cpu)),
+            std: std_of(&var),
+            var,
             count: 0,
         }
     }
 
     /// Restores saved statistics (checkpoint resume).
     pub fn from_parts(mean: Tensor, var: Tensor, count: i64) -> Self {
-        EmpiricalNormalizer { mean, var, count }
+        EmpiricalNormalizer {
+            std: std_of(&var),
+            mean,
+            var,
+            count,
+        }
     }
 
     /// Folds a batch `[B, dim]` into the running statistics (parallel-variance update).
@@ -40,11 +55,12 @@ impl EmpiricalNormalizer {
             let delta = &mean_x - &self.mean;
             self.mean += &delta * rate;
             self.var += (var_x - &self.var + &delta * (&mean_x - &self.mean)) * rate;
+            self.std = std_of(&self.var);
         });
     }
 
     pub fn normalize(&self, x: &Tensor) -> Tensor {
-        (x - &self.mean) / self.export_std()
+        (x - &self.mean) / &self.std
     }
 
     pub fn mean(&self) -> &Tensor {
@@ -61,7 +77,7 @@ impl EmpiricalNormalizer {
 
     /// The divisor the network sees: `√var + ε`, strictly positive.
     pub fn export_std(&self) -> Tensor {
-        self.var.sqrt() + EPS
+        self.std.copy()
     }
 }
 

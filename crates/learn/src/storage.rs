@@ -137,38 +137,69 @@ impl RolloutStorage {
         minibatches: usize,
         epochs: usize,
     ) -> impl Iterator<Item = Batch> + '_ {
+        self.minibatches_with(minibatches, epochs, |obs, critic_obs| {
+            (obs.shallow_clone(), critic_obs.shallow_clone())
+        })
+    }
+
+    /// [`RolloutStorage::minibatches`] with the flattened `[T·N, O]` and `[T·N, C]`
+    /// observations first mapped by `map_obs` (the PPO update normalizes them here, once per
+    /// update, since the normalizers do not change during it).
+    ///
+    /// Every per-sample field is packed side by side into one `[T·N, F]` tensor and gathered in
+    /// the permutation's order once per update; minibatch `i` is then the contiguous row block
+    /// `i`, and each field a column view of it. That is the samples of rsl_rl's per-minibatch
+    /// `field[perm[i·size..(i+1)·size]]`, with one gather per update instead of nine per
+    /// minibatch (the permutation is the same for every epoch, so their blocks are too).
+    pub fn minibatches_with(
+        &self,
+        minibatches: usize,
+        epochs: usize,
+        map_obs: impl FnOnce(&Tensor, &Tensor) -> (Tensor, Tensor),
+    ) -> impl Iterator<Item = Batch> + '_ {
         let batch = self.rewards.numel() as i64;
         let size = batch / minibatches as i64;
         let perm = Tensor::randperm(size * minibatches as i64, (Kind::Int64, Device::Cpu));
         let flat = |t: &Tensor| t.flatten(0, 1);
-        let (obs, critic_obs, actions, values, advantages) = (
-            flat(&self.obs),
-            flat(&self.critic_obs),
+        let column = |t: &Tensor| t.flatten(0, 1).unsqueeze(1);
+        let (obs, critic_obs) = map_obs(&flat(&self.obs), &flat(&self.critic_obs));
+        let fields = [
+            obs,
+            critic_obs,
             flat(&self.actions),
-            flat(&self.values),
-            flat(&self.advantages),
-        );
-        let (returns, log_probs, means, stds) = (
-            flat(&self.returns),
-            flat(&self.log_probs),
+            column(&self.values),
+            column(&self.advantages),
+            column(&self.returns),
+            column(&self.log_probs),
             flat(&self.means),
             flat(&self.stds),
-        );
+        ];
+        let widths: Vec<i64> = fields.iter().map(|f| f.size()[1]).collect();
+        let shuffled = Tensor::cat(&fields, 1).index_select(0, &perm);
         (0..epochs)
             .flat_map(move |_| 0..minibatches as i64)
             .map(move |i| {
-                let idx = perm.narrow(0, i * size, size);
-                let pick = |t: &Tensor| t.index_select(0, &idx);
+                let rows = shuffled.narrow(0, i * size, size);
+                let mut offset = 0;
+                let mut next = |k: usize| {
+                    let t = rows.narrow(1, offset, widths[k]);
+                    offset += widths[k];
+                    t
+                };
+                let (obs, critic_obs, actions) = (next(0), next(1), next(2));
+                let (old_values, advantages, returns) = (next(3), next(4), next(5));
+                let (old_log_probs, old_means, old_stds) = (next(6), next(7), next(8));
+                let sq = |t: Tensor| t.squeeze_dim(1);
                 Batch {
-                    obs: pick(&obs),
-                    critic_obs: pick(&critic_obs),
-                    actions: pick(&actions),
-                    old_values: pick(&values),
-                    advantages: pick(&advantages),
-                    returns: pick(&returns),
-                    old_log_probs: pick(&log_probs),
-                    old_means: pick(&means),
-                    old_stds: pick(&stds),
+                    obs,
+                    critic_obs,
+                    actions,
+                    old_values: sq(old_values),
+                    advantages: sq(advantages),
+                    returns: sq(returns),
+                    old_log_probs: sq(old_log_probs),
+                    old_means,
+                    old_stds,
                 }
             })
     }
