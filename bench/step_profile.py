@@ -4,7 +4,7 @@ graphs by DWARF unwinding) and sorts every sample of the batched step into the c
 by the functions on its stack (first match wins); samples of env construction are set aside.
 
 Usage (from the project root, after `cargo build --release -p moonhaul`; needs `perf`):
-    bench/step_profile.py [--envs 8] [--steps 500] [--binary target/release/moonhaul]
+    bench/step_profile.py [--envs 8] [--steps 500] [--binary target/release/moonhaul] [--plan FILE]
 """
 
 from __future__ import annotations
@@ -37,12 +37,13 @@ def main() -> None:
     p.add_argument("--envs", type=int, default=8)
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--binary", default="target/release/moonhaul")
+    p.add_argument("--plan", default="bench/mujoco/plan.json")
     a = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "perf.data")
         subprocess.run(["perf", "record", "-q", "-F", "1999", "--call-graph", "dwarf,32768", "-o", data,
                         a.binary, "sim", "bench", "--json", "--envs", str(a.envs), "--threads", "1",
-                        "--steps", str(a.steps), "--plan", "bench/mujoco/plan.json"],
+                        "--steps", str(a.steps), "--plan", a.plan],
                        check=True, stdout=subprocess.DEVNULL)
         script = subprocess.run(["perf", "script", "-i", data], check=True, capture_output=True, text=True).stdout
     counts: collections.Counter[str] = collections.Counter()
