@@ -123,18 +123,11 @@ pub fn contact_manifolds_heightfield_shape<ManifoldData, ContactData>(
     // and its narrow-phase test. The square box query above keeps them all (~5× as many for a
     // ball resting on the terrain). A skipped triangle's manifold would have been empty, so the
     // contacts and their order are the same.
-    // Likewise a cuboid (the payload) and a triangle whose three vertices all lie beyond one
-    // face's slab widened by `prediction`, in the cuboid's frame: every point of the triangle is
-    // then further than `prediction` from the cuboid.
     #[cfg(feature = "dim3")]
     let ball_reach = shape2.as_ball().map(|ball| {
         let reach = ball.radius + prediction;
         (pos12.translation, reach * reach)
     });
-    #[cfg(feature = "dim3")]
-    let cuboid_reach = shape2
-        .as_cuboid()
-        .map(|cuboid| cuboid.half_extents + crate::math::Vector::splat(prediction));
 
     heightfield1.map_elements_in_local_aabb(&ls_aabb2, &mut |i, part1| {
         #[cfg(feature = "dim3")]
@@ -142,14 +135,6 @@ pub fn contact_manifolds_heightfield_shape<ManifoldData, ContactData>(
             let mins = part1.a.min(part1.b).min(part1.c);
             let maxs = part1.a.max(part1.b).max(part1.c);
             if (centre.clamp(mins, maxs) - centre).length_squared() > reach2 {
-                return;
-            }
-        }
-        #[cfg(feature = "dim3")]
-        if let Some(reach) = cuboid_reach {
-            let [a, b, c] = [part1.a, part1.b, part1.c].map(|v| pos12.inverse_transform_point(v));
-            let (mins, maxs) = (a.min(b).min(c), a.max(b).max(c));
-            if mins.cmpgt(reach).any() || maxs.cmplt(-reach).any() {
                 return;
             }
         }
