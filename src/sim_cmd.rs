@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use moonhaul_core::state::{Phase, UnitCommand, ARM_JOINTS};
+use moonhaul_core::input::read_capped_text;
+use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
 use moonhaul_sim::accuracy;
 use moonhaul_sim::scene::UNITS;
 use moonhaul_sim::scripted::{run_mission, MissionPlan, ScriptedController};
@@ -324,18 +325,14 @@ const MAX_PLAN_BYTES: u64 = 512 << 20;
 /// The first `steps` commands of a plan file (see `Bench::plan`); every error names the file
 /// and, for a bad command, its step and unit.
 fn plan_commands(path: &Path, steps: usize) -> Result<Vec<[UnitCommand; UNITS]>> {
+    /// One `[wheel_l, wheel_r, q1..q7]` per unit: the action layout of `UnitCommand`.
     #[derive(serde::Deserialize)]
     struct Plan {
-        commands: Vec<[[f64; 2 + ARM_JOINTS]; UNITS]>,
+        commands: Vec<[[f64; UNIT_ACTION_DIM]; UNITS]>,
     }
     let name = path.display();
-    let size = std::fs::metadata(path)
-        .with_context(|| format!("cannot read plan {name}"))?
-        .len();
-    if size > MAX_PLAN_BYTES {
-        bail!("plan {name} is {size} bytes, more than the {MAX_PLAN_BYTES} a plan may have");
-    }
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read plan {name}"))?;
+    let text = read_capped_text(path, MAX_PLAN_BYTES)
+        .with_context(|| format!("cannot read plan {name}"))?;
     let plan: Plan = serde_json::from_str(&text)
         .with_context(|| format!("plan {name} is not a command plan"))?;
     if plan.commands.len() < steps {
@@ -348,15 +345,12 @@ fn plan_commands(path: &Path, steps: usize) -> Result<Vec<[UnitCommand; UNITS]>>
         .iter()
         .enumerate()
         .map(|(step, pair)| {
-            let mut out = [UnitCommand::default(); UNITS];
-            for (unit, (command, values)) in out.iter_mut().zip(pair).enumerate() {
+            for (unit, values) in pair.iter().enumerate() {
                 if let Some(bad) = values.iter().position(|v| !v.is_finite()) {
                     bail!("plan {name}: commands[{step}][{unit}][{bad}] is not finite");
                 }
-                command.wheel_velocity_radps = [values[0], values[1]];
-                command.arm_position_rad.copy_from_slice(&values[2..]);
             }
-            Ok(out)
+            Ok(pair.map(|action| UnitCommand::from_action(&action)))
         })
         .collect()
 }

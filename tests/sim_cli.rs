@@ -317,4 +317,7 @@ fn bench_replays_a_plan_file_and_names_a_bad_one() {
         bench("/nonexistent/plan.json", "1"),
         "/nonexistent/plan.json",
     );
+    // A folder (as a device or a FIFO would be) is refused before anything is read.
+    let folder = dir.path().to_str().unwrap().to_owned();
+    run(bench(&folder, "1"), "not a regular file");
 }

@@ -190,8 +190,12 @@ impl ActorCritic {
 
     /// `[B]` values of raw critic observations `[B, C]`.
     fn critic_value(&self, critic_obs: &Tensor) -> Tensor {
-        let x = normalize(self.critic_obs_normalizer.as_ref(), critic_obs);
-        self.critic.forward(&x).squeeze_dim(-1)
+        self.critic_forward(&normalize(self.critic_obs_normalizer.as_ref(), critic_obs))
+    }
+
+    /// `[B]` values of normalized critic observations.
+    fn critic_forward(&self, normalized: &Tensor) -> Tensor {
+        self.critic.forward(normalized).squeeze_dim(-1)
     }
 
     /// `[B]` critic values of raw critic observations `[B, C]`, without gradient.
@@ -260,7 +264,7 @@ impl ActorCritic {
         Evaluation {
             log_prob: gaussian::log_prob(actions, &mean, &std),
             entropy: gaussian::entropy(&std),
-            values: self.critic.forward(critic_obs).squeeze_dim(-1),
+            values: self.critic_forward(critic_obs),
             mean,
             std,
         }

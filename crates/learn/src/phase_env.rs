@@ -37,8 +37,10 @@ struct World {
     final_critic: [[f64; CRITIC_OBS_DIM]; UNITS],
     reward: f64,
     outcome: StepOutcome,
-    /// CPU time of this step's physics and of the rest of its step (task), s.
-    cpu_s: [f64; 2],
+    /// CPU time of this step's physics, s.
+    physics_cpu_s: f64,
+    /// CPU time of the rest of this step (the task's half), s.
+    task_cpu_s: f64,
 }
 
 /// What the reward sees of the payload (privileged truth).
@@ -154,7 +156,8 @@ impl PhaseVecEnv {
                     terminated: None,
                     truncated: false,
                 },
-                cpu_s: [0.0; 2],
+                physics_cpu_s: 0.0,
+                task_cpu_s: 0.0,
             };
             observe(&self.task, scene, env, state, &mut world)?;
             worlds.push(world);
@@ -291,18 +294,16 @@ impl VecEnv for PhaseVecEnv {
                 env.step(scene, &world.commands);
                 env.state_into(scene, state);
                 let physics_end = Instant::now();
-                world.cpu_s[0] = (physics_end - start).as_secs_f64();
+                world.physics_cpu_s = (physics_end - start).as_secs_f64();
                 let result = task_step(task, reward, gamma, scene, env, state, world);
-                world.cpu_s[1] = physics_end.elapsed().as_secs_f64();
+                world.task_cpu_s = physics_end.elapsed().as_secs_f64();
                 result
             })?;
         // The workers' CPU split applied to the parallel section's wall time: what the
         // physics cost this step with the task's work beside it on the same threads.
         let parallel_s = parallel_start.elapsed().as_secs_f64();
-        let [physics, rest] = self
-            .worlds
-            .iter()
-            .fold([0.0; 2], |[p, r], w| [p + w.cpu_s[0], r + w.cpu_s[1]]);
+        let physics: f64 = self.worlds.iter().map(|w| w.physics_cpu_s).sum();
+        let rest: f64 = self.worlds.iter().map(|w| w.task_cpu_s).sum();
         if physics + rest > 0.0 {
             self.physics_s += parallel_s * physics / (physics + rest);
         }
