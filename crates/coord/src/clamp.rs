@@ -44,7 +44,8 @@ struct Sample {
 }
 
 /// Why the clamp issued a hold instead of T(t_max).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum HoldReason {
     /// σ = 1.
     SafetyStop(StopReason),
