@@ -32,4 +32,5 @@ pub mod se3;
 pub mod seed;
 pub mod stacked;
 pub mod state;
+pub mod task_config;
 pub mod unit;
