@@ -9,8 +9,8 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use anyhow::{bail, Context, Result};
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
 use moonhaul_hal::can::cia402::Cia402State;
-use moonhaul_hal::can::{candump, Cia402Master, RecordingBus, UnitCanConfig, VirtualBus};
-use moonhaul_hal::{ArmDrive, Drive, WheelDrive};
+use moonhaul_hal::can::{candump, RecordingBus, UnitCanConfig};
+use moonhaul_hal::{emulated_unit_on, ArmDrive, Drive, WheelDrive};
 
 #[derive(clap::Subcommand)]
 pub enum CanCommand {
@@ -146,10 +146,8 @@ fn emulate(unit: &Path, seconds: f64, record: Option<&Path>) -> Result<()> {
             .unwrap_or_default()
             .as_secs(),
     );
-    let bus = RecordingBus::new(VirtualBus::for_unit(&config), epoch);
-    let mut master = Cia402Master::new(bus, &config);
-
-    master.start_up().context("start-up failed")?;
+    let mut master = emulated_unit_on(&config, |bus| RecordingBus::new(bus, epoch))
+        .context("start-up failed")?;
     master.enable().context("enabling the drives failed")?;
     let enabled = master
         .drive_states()

@@ -8,6 +8,11 @@
 //! Limits from the URDF wrap any driver as a decorator ([`limits::Limited`]) rather than living
 //! inside each driver.
 //!
+//! The daemon sees a whole unit through [`UnitHardware`] (ros2_control's system interface: one
+//! `read` and one `write` per tick, `activate`/`deactivate`), implemented by [`DriveUnit`] (any
+//! wheel drive plus any arm drive), [`MockUnit`] and [`can::Cia402Master`]; tests inject
+//! faults through [`FaultInjection`].
+//!
 //! Commands are latched: `command_*` stores the target that the next [`Drive::sync`] sends, and
 //! `read_*` returns the feedback the last `sync` collected. That mirrors a SYNC-driven CAN cycle
 //! and lets mocks advance simulated time explicitly, so tests are deterministic.
@@ -15,6 +20,7 @@
 pub mod can;
 pub mod limits;
 pub mod mock;
+pub mod unit;
 
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
 use std::time::Duration;
@@ -70,6 +76,11 @@ pub enum HalError {
 }
 
 pub use moonhaul_core::state::JointReading;
+pub use unit::{
+    emulated_unit, emulated_unit_on, DriveUnit, FaultInjection, GraspModel, InjectedFault,
+    LoadShareGrasp, MockUnit, NoGrasp, UnitHardware, UnitOutput, UnitReading, INJECTED_EMCY_CODE,
+    INJECTED_MOTOR_FAULT_CODE, UNIT_JOINTS,
+};
 
 /// Power-stage control and the control period, shared by both drive kinds.
 pub trait Drive {

@@ -214,10 +214,17 @@ impl<B: CanBus> Cia402Master<B> {
                 waited: self.bus.now(),
             })?);
         }
-        let efforts: Option<Vec<f64>> = axes
-            .iter()
-            .map(|a| a.config.to_effort_nm(a.torque_permille))
-            .collect();
+        // Effort only where every drive has a rated torque; no allocation on the cyclic path.
+        let mut effort_nm = Some([0.0; N]);
+        for (j, axis) in axes.iter().enumerate() {
+            match (
+                effort_nm.as_mut(),
+                axis.config.to_effort_nm(axis.torque_permille),
+            ) {
+                (Some(e), Some(value)) => e[j] = value,
+                _ => effort_nm = None,
+            }
+        }
         Ok(JointReading {
             position_rad: std::array::from_fn(|j| {
                 axes[j].config.to_rad(axes[j].position_counts as f64)
@@ -225,7 +232,7 @@ impl<B: CanBus> Cia402Master<B> {
             velocity_radps: std::array::from_fn(|j| {
                 axes[j].config.to_rad(axes[j].velocity_countsps.into())
             }),
-            effort_nm: efforts.map(|e| std::array::from_fn(|j| e[j])),
+            effort_nm,
             stamp,
         })
     }
