@@ -37,10 +37,18 @@ impl Env {
 
     /// Releases both grasps (placement).
     pub fn release_grasps(&mut self) {
-        for (grasp, state) in self.grasps.iter_mut().zip(&mut self.grasp_state) {
-            if let Some(h) = grasp.take() {
-                self.world.remove_impulse_joint(h);
-            }
+        for unit in 0..self.grasps.len() {
+            self.release_grasp(unit);
+        }
+    }
+
+    /// Releases unit `unit`'s grasp (its gripper opened); a no-op when it holds nothing or
+    /// there is no such unit.
+    pub fn release_grasp(&mut self, unit: usize) {
+        if let Some(h) = self.grasps.get_mut(unit).and_then(Option::take) {
+            self.world.remove_impulse_joint(h);
+        }
+        if let Some(state) = self.grasp_state.get_mut(unit) {
             *state = GraspState::default();
         }
     }
