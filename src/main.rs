@@ -14,6 +14,9 @@ macro_rules! outln {
 mod can_cmd;
 mod eval;
 mod eval_cmd;
+mod keys_cmd;
+mod log_cmd;
+mod mission;
 mod payload_arg;
 mod policy_cmd;
 mod sim_cmd;
@@ -51,6 +54,16 @@ enum Command {
     /// Evaluate the phase policies against the paper's simulation results, beside the scripted
     /// IK controller: seeded, randomized episodes of every case and payload.
     Eval(eval_cmd::EvalArgs),
+    /// Mission logs: the paper's hardware metrics of a mission directory's ground truth.
+    #[command(subcommand)]
+    Log(log_cmd::LogCommand),
+    /// Team key files that authenticate peer and operator messages: generate one per team (mode
+    /// 0600, kept outside the repository, e.g. ~/.config/moonhaul/<team>.keys.toml).
+    #[command(subcommand)]
+    Keys(keys_cmd::KeysCommand),
+    /// Missions: operator start/stop/status over zenoh, simulated missions of real processes.
+    #[command(subcommand)]
+    Mission(mission::MissionCommand),
 }
 
 fn main() -> std::process::ExitCode {
@@ -61,6 +74,9 @@ fn main() -> std::process::ExitCode {
         Command::Can(cmd) => can_cmd::run(cmd),
         Command::Sim(cmd) => sim_cmd::run(cmd),
         Command::Eval(args) => eval_cmd::run(args),
+        Command::Log(cmd) => log_cmd::run(cmd),
+        Command::Keys(cmd) => keys_cmd::run(cmd),
+        Command::Mission(cmd) => mission::run(cmd),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -161,20 +161,43 @@ fn test(extra: &[String]) -> Result<(), String> {
 /// model it runs on, and a unit's CAN start-up against
 /// emulated drives. Everything lands in `runs/demo/`.
 fn demo() -> Result<(), String> {
-    let venv = setup()?;
-    let out = workspace_root().join("runs").join("demo");
+    // No libtorch: the onboard stack and the simulator are pure Rust, so plain cargo, no venv.
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| OsString::from("cargo"));
+    let root = workspace_root();
+    run(Command::new(&cargo).current_dir(&root).args([
+        "build",
+        "--quiet",
+        "--release",
+        "--package",
+        "moonhaul",
+        "--bins",
+    ]))?;
+    let out = root.join("runs").join("demo");
     let out = out.to_string_lossy();
     let moonhaul = |args: &[&str]| {
-        let mut all = vec!["run", "--quiet", "--release", "--package", "moonhaul", "--"];
+        let mut all = vec![
+            "run",
+            "--quiet",
+            "--release",
+            "--package",
+            "moonhaul",
+            "--bin",
+            "moonhaul",
+            "--",
+        ];
         all.extend_from_slice(args);
-        run(cargo_command(&venv).args(all))
+        run(Command::new(&cargo).current_dir(&root).args(all))
     };
     moonhaul(&["urdf", "check", "assets/unit.urdf"])?;
+    // The learned mission: three payloads, three trials each, as the paper flew them; every
+    // unit its own process on the sim-backed drives, peers and operator over zenoh.
     moonhaul(&[
+        "mission",
         "sim",
-        "demo",
         "--payload",
-        "box",
+        "box,bricks,sledge",
+        "--trials",
+        "3",
         "--seed",
         "1",
         "--out",
@@ -192,7 +215,9 @@ fn demo() -> Result<(), String> {
         &can_log,
     ])?;
     eprintln!(
-        "xtask: mission CSV and plot in {out}/ (demo.csv, demo.png), CAN traffic in {can_log}"
+        "xtask: mission logs (MCAP, open in Foxglove) under {out}/<payload>/trial-<k>/, the \
+         summary in {out}/summary.json, the mission profile in {out}/mission_profile.png, CAN \
+         traffic in {can_log}"
     );
     Ok(())
 }

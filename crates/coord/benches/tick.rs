@@ -1,12 +1,15 @@
 //! Per-tick time of the coordination layer for a team of two: the phase gate with team
-//! agreement, then the synchronization clamp, on the shipped unit (assets/unit.urdf).
+//! agreement, then the synchronization clamp, on the shipped unit (assets/unit.urdf); and the
+//! cost of sealing and receiving one authenticated peer frame.
 //! Prints figures; asserts nothing about time. Run: `cargo bench -p moonhaul-coord`.
 
 use moonhaul_coord::gate::Measurements;
 use moonhaul_coord::message::{
     Announcements, Body, Envelope, OperatorCommand, Sender, Transition, UnitTick, PROTOCOL_VERSION,
 };
-use moonhaul_coord::{Clamp, ClampInput, GateConfig, SyncConfig, Team, TeamSettings, UnitModel};
+use moonhaul_coord::{
+    Clamp, ClampInput, GateConfig, KeyFile, SyncConfig, Team, TeamSettings, UnitModel, Validator,
+};
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState};
 use std::hint::black_box;
 use std::time::Instant;
@@ -101,6 +104,52 @@ fn main() {
             per_tick_us / 200.0,
         );
     }
+    frames();
+}
+
+/// Seal (unit 1) and authenticate + decode + validate (unit 0) one unit-state frame.
+fn frames() {
+    let settings = TeamSettings {
+        team: "moonhaul".into(),
+        team_size: 2,
+        unit_index: 0,
+        control_period_us: PERIOD_US,
+        peer_staleness_periods: 3,
+    };
+    let keys = KeyFile::generate("moonhaul", 2, 1);
+    let (sealer, mut validator) = match keys.map(|keys| {
+        let sealer = keys.sealer(Sender::Unit(1));
+        (sealer, Validator::new(&settings, &keys))
+    }) {
+        Ok((Ok(sealer), Ok(validator))) => (sealer, validator),
+        _ => {
+            eprintln!("cannot set up the frame bench");
+            std::process::exit(1);
+        }
+    };
+    let mut peer = peer_state(1_000_000, Phase::Lift);
+    let mut frame = Vec::new();
+    let (mut seal_s, mut receive_s, mut accepted) = (0.0, 0.0, 0u32);
+    let mut now_us = 1_000_000;
+    for _ in 0..TICKS {
+        now_us += PERIOD_US;
+        (peer.seq, peer.stamp_us) = (now_us, now_us);
+        let started = Instant::now();
+        if sealer.seal_into(black_box(&peer), &mut frame).is_err() {
+            continue;
+        }
+        seal_s += started.elapsed().as_secs_f64();
+        let started = Instant::now();
+        accepted += u32::from(validator.receive_frame(black_box(&frame), now_us).is_ok());
+        receive_s += started.elapsed().as_secs_f64();
+    }
+    let n = f64::from(TICKS);
+    println!(
+        "peer frame ({} bytes): seal {:.2} us, receive (HMAC + JSON + checks) {:.2} us; {accepted} of {TICKS} accepted",
+        frame.len(),
+        seal_s * 1e6 / n,
+        receive_s * 1e6 / n,
+    );
 }
 
 /// Unit 0 of a two-unit team, already in Lift.

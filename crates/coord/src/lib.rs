@@ -6,15 +6,19 @@
 //! - [`team`]: agreement of N units on phase changes (a barrier) and the team-wide safety stop;
 //! - [`clamp`]: the synchronization clamp that admits the largest safe step toward the policies'
 //!   target (eqs. stacked_state … stacked_metric) and names the subsystem that limits it;
-//! - [`message`]: versioned peer messages and their validation;
+//! - [`message`]: versioned peer messages and their validation (authentication, replay
+//!   protection);
+//! - [`auth`]: the authenticated wire frame (HMAC-SHA256) and the team key file;
 //! - [`model`]: the unit kinematics the clamp evaluates (arm FK on a differential-drive base);
 //! - [`config`]: `configs/sync.toml`, `configs/gate.toml` and the team settings a daemon
 //!   derives from `configs/unit.toml`.
 //!
-//! Per tick a unit validates and [`team::Team::receive`]s its messages, calls
-//! [`team::Team::tick`] (gate + agreement), runs the active policy when told to, and calls
-//! [`clamp::Clamp::step`] with the decision's hold reason. Neither tick call allocates.
+//! Per tick a unit authenticates and validates its frames ([`Validator::receive_frame`]),
+//! [`team::Team::receive`]s the accepted messages, calls [`team::Team::tick`] (gate +
+//! agreement), runs the active policy when told to, and calls [`clamp::Clamp::step`] with the
+//! decision's hold reason. Neither tick call allocates.
 
+pub mod auth;
 pub mod clamp;
 pub mod config;
 pub mod gate;
@@ -22,6 +26,7 @@ pub mod message;
 pub mod model;
 pub mod team;
 
+pub use auth::{KeyFile, Sealer};
 pub use clamp::{Clamp, ClampInput, ClampReport, HoldReason};
 pub use config::{GateConfig, SyncConfig, TeamError, TeamSettings};
 pub use gate::{Measurements, PhaseGate};

@@ -307,3 +307,102 @@ fn successor(phase: Phase) -> Phase {
     };
     next_phase(phase, &every_task_event)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::message::{UnitTick, PROTOCOL_VERSION};
+    use moonhaul_core::state::{UnitCommand, UnitState};
+
+    const NOW: u64 = 1_000_000;
+
+    fn peer(seq: u64, announce: Announcements) -> Envelope {
+        Envelope {
+            version: PROTOCOL_VERSION,
+            team: "moonhaul".into(),
+            sender: Sender::Unit(1),
+            seq,
+            stamp_us: NOW,
+            body: Body::Unit(UnitTick {
+                phase: Phase::Idle,
+                state: UnitState::default(),
+                command: UnitCommand::default(),
+                announce,
+            }),
+        }
+    }
+
+    /// A commit by acknowledgement needs an ack of exactly the transition this unit proposes:
+    /// another mission's, another phase pair's or a stale one never moves it.
+    #[test]
+    fn only_an_ack_of_the_own_proposal_commits() {
+        let settings = TeamSettings {
+            team: "moonhaul".into(),
+            team_size: 2,
+            unit_index: 0,
+            control_period_us: 20_000,
+            peer_staleness_periods: 3,
+        };
+        let mut team = Team::new(settings, &GateConfig::shipped().unwrap()).unwrap();
+        let forces = [30.0, 30.0];
+        let measured = Measurements {
+            payload_height_m: 0.0,
+            goal_distance_m: 2.0,
+            grasp_force_n: &forces,
+        };
+        team.receive(&peer(1, Announcements::default()));
+        team.receive(&Envelope {
+            sender: Sender::Operator,
+            body: Body::Operator(OperatorCommand::Start { mission: 1 }),
+            ..peer(1, Announcements::default())
+        });
+        let own = Transition {
+            mission: 1,
+            from: Phase::Idle,
+            to: Phase::Lift,
+        };
+        let decision = team.tick(NOW, &measured, None);
+        assert_eq!(decision.announce.propose, Some(own));
+        assert_eq!(decision.phase, Phase::Idle);
+        let others = [
+            Transition { mission: 2, ..own },
+            Transition {
+                mission: u32::MAX,
+                ..own
+            },
+            Transition {
+                mission: 1,
+                from: Phase::Lift,
+                to: Phase::Transport,
+            },
+            Transition {
+                mission: 1,
+                from: Phase::Idle,
+                to: Phase::Place,
+            },
+        ];
+        for (k, ack) in others.into_iter().enumerate() {
+            team.receive(&peer(
+                2 + k as u64,
+                Announcements {
+                    ack: Some(ack),
+                    ..Default::default()
+                },
+            ));
+            let decision = team.tick(NOW, &measured, None);
+            assert_eq!(decision.phase, Phase::Idle, "ack of {ack:?} committed");
+            assert_eq!(
+                decision.directive,
+                Directive::Hold(HoldReason::PhasePending(own))
+            );
+        }
+        team.receive(&peer(
+            9,
+            Announcements {
+                ack: Some(own),
+                ..Default::default()
+            },
+        ));
+        assert_eq!(team.tick(NOW, &measured, None).phase, Phase::Lift);
+    }
+}

@@ -3,9 +3,11 @@
 
 use moonhaul_coord::gate::Measurements;
 use moonhaul_coord::message::{
-    encode, Body, Envelope, OperatorCommand, Sender, StopReason, UnitTick, PROTOCOL_VERSION,
+    Body, Envelope, OperatorCommand, Sender, StopReason, UnitTick, PROTOCOL_VERSION,
 };
-use moonhaul_coord::{Directive, GateConfig, HoldReason, Team, TeamSettings, Validator};
+use moonhaul_coord::{
+    Directive, GateConfig, HoldReason, KeyFile, Sealer, Team, TeamSettings, Validator,
+};
 use moonhaul_core::state::{Phase, UnitCommand, UnitState};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -22,6 +24,7 @@ struct Sim {
     drop_probability: f64,
     /// Delays are uniform in 1..=max_delay_ticks.
     max_delay_ticks: u64,
+    operator: Sealer,
     operator_seq: u64,
     /// Payload height above the ground, goal distance, grasp force (m, m, N).
     world: (f64, f64, f64),
@@ -30,6 +33,7 @@ struct Sim {
 struct SimUnit {
     team: Team,
     validator: Validator,
+    sealer: Sealer,
     seq: u64,
     /// Constant measurement bias (m) so units detect events at different ticks.
     bias_m: f64,
@@ -42,6 +46,7 @@ impl Sim {
     fn new(n: usize, seed: u64, drop_probability: f64, max_delay_ticks: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let gate = GateConfig::shipped().unwrap();
+        let keys = KeyFile::generate("moonhaul", n, 1).unwrap();
         let units = (0..n)
             .map(|i| {
                 let settings = TeamSettings {
@@ -52,7 +57,8 @@ impl Sim {
                     peer_staleness_periods: STALENESS_PERIODS,
                 };
                 SimUnit {
-                    validator: Validator::new(&settings),
+                    validator: Validator::new(&settings, &keys).unwrap(),
+                    sealer: keys.sealer(Sender::Unit(i)).unwrap(),
                     team: Team::new(settings, &gate).unwrap(),
                     seq: 0,
                     bias_m: rng.random_range(-0.004..0.004),
@@ -67,6 +73,7 @@ impl Sim {
             in_flight: Vec::new(),
             drop_probability,
             max_delay_ticks,
+            operator: keys.sealer(Sender::Operator).unwrap(),
             operator_seq: 0,
             world: (0.0, 1.0, 30.0),
         }
@@ -92,7 +99,8 @@ impl Sim {
             stamp_us: tick * PERIOD_US,
             body,
         };
-        let bytes = encode(&envelope).unwrap();
+        let sealer = from.map_or(&self.operator, |i| &self.units[i].sealer);
+        let bytes = sealer.seal(&envelope).unwrap();
         for to in 0..self.units.len() {
             if Some(to) == from || self.rng.random_bool(self.drop_probability) {
                 continue;
@@ -121,7 +129,7 @@ impl Sim {
             if unit.silent_from.is_some_and(|s| tick >= s) {
                 continue;
             }
-            if let Ok(envelope) = unit.validator.receive_bytes(&bytes, now_us) {
+            if let Ok(envelope) = unit.validator.receive_frame(&bytes, now_us) {
                 unit.team.receive(&envelope);
             }
         }
@@ -441,4 +449,90 @@ fn an_operator_stop_stops_all_and_only_a_newer_start_restarts() {
         .units
         .iter()
         .all(|u| u.log.last().unwrap().0 != Phase::Idle));
+}
+
+/// An outsider on the network without the team's keys floods it with forgeries of every kind
+/// the unauthenticated protocol fell to: sequence numbers at `u64::MAX` (which would have
+/// blocked every later real message of that sender), operator starts for mission `u32::MAX`
+/// (every later real start) and stops, and acknowledgements of every transition (each could
+/// have committed a phase change). The mission runs exactly as without them.
+#[test]
+fn forged_frames_on_the_network_change_nothing() {
+    let transitions = [
+        (Phase::Idle, Phase::Lift),
+        (Phase::Lift, Phase::Transport),
+        (Phase::Transport, Phase::Place),
+        (Phase::Place, Phase::Idle),
+    ];
+    for n in [2, 3] {
+        let mut sim = Sim::new(n, 11, 0.0, 1);
+        let attacker = KeyFile::generate("moonhaul", n, 1).unwrap();
+        for tick in 1..=400 {
+            if (5..15).contains(&tick) {
+                sim.send(
+                    None,
+                    tick,
+                    Body::Operator(OperatorCommand::Start { mission: 1 }),
+                );
+            }
+            let stamp_us = tick * PERIOD_US;
+            let forge = |sender: Sender, body: Body| {
+                let envelope = Envelope {
+                    version: PROTOCOL_VERSION,
+                    team: "moonhaul".into(),
+                    sender,
+                    seq: u64::MAX,
+                    stamp_us,
+                    body,
+                };
+                attacker.sealer(sender).unwrap().seal(&envelope).unwrap()
+            };
+            let mut forged = vec![
+                forge(
+                    Sender::Operator,
+                    Body::Operator(OperatorCommand::Start { mission: u32::MAX }),
+                ),
+                // Late in the mission, a forged stop too (it would send everyone to Idle).
+                forge(Sender::Operator, Body::Operator(OperatorCommand::Stop)),
+            ];
+            for unit in 0..n {
+                for (from, to) in transitions {
+                    let mut tick_message = UnitTick {
+                        phase: to,
+                        state: UnitState::default(),
+                        command: UnitCommand::default(),
+                        announce: Default::default(),
+                    };
+                    let t = moonhaul_coord::message::Transition {
+                        mission: 1,
+                        from,
+                        to,
+                    };
+                    tick_message.announce.ack = Some(t);
+                    tick_message.announce.propose = Some(t);
+                    forged.push(forge(Sender::Unit(unit), Body::Unit(tick_message)));
+                }
+            }
+            for bytes in forged {
+                for to in 0..n {
+                    sim.in_flight.push((tick + 1, to, bytes.clone()));
+                }
+            }
+            sim.step(tick);
+        }
+        for i in 0..n {
+            assert_eq!(sim.phase_history(i), FULL_MISSION, "unit {i} of {n}");
+        }
+        sim.assert_one_policy_at_a_time();
+        for u in &sim.units {
+            let counts = u.validator.counts();
+            assert!(counts.bad_mac > 0);
+            // Forgeries naming the receiver itself are dropped before the tag check.
+            assert_eq!(
+                counts.total(),
+                counts.bad_mac + counts.unknown_sender,
+                "{counts:?}"
+            );
+        }
+    }
 }

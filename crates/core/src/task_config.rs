@@ -3,7 +3,9 @@
 //! simulator's tasks (training, evaluation) and the onboard daemon (the mission goals it gives
 //! its policies) read the one file through the one type.
 
-use crate::config::{self, in_range, interval, positive, section, ConfigError, FieldError, Validate};
+use crate::config::{
+    self, in_range, interval, positive, section, ConfigError, FieldError, Validate,
+};
 use crate::state::Phase;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -247,7 +249,6 @@ impl VelocityProfile {
         up + cruise + down
     }
 }
-
 
 #[cfg(test)]
 mod tests {

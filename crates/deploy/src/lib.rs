@@ -1,6 +1,14 @@
 //! # moonhaul-deploy
 //!
-//! What runs on each robot: the per-unit daemon's settings and its mission-log records.
+//! What runs on each robot: the onboard tick ([`tick`]), the `moonhaul-unit` daemon
+//! ([`daemon`]) over a unit-level hardware backend, peers and operator over zenoh
+//! ([`network`]), the sim-backed hardware link ([`sim_link`]) and the mission log
+//! ([`record`], [`mission_log`]).
 
+pub mod daemon;
+pub mod mission_log;
+pub mod network;
 pub mod record;
+pub mod sim_link;
+pub mod tick;
 pub mod unit_config;

@@ -2,8 +2,10 @@
 //! the daemon) by core's one loader; the control rate comes from the `configs/control.toml`
 //! the file names.
 
+use crate::network::NetworkSettings;
 use moonhaul_coord::{TeamError, TeamSettings};
 use moonhaul_core::config::{self, count, ConfigError, ControlConfig, FieldError, Validate};
+use moonhaul_core::state::{PlanarPose, ARM_JOINTS};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -25,6 +27,36 @@ pub struct UnitConfig {
     pub control_rate_hz: f64,
     /// A peer whose newest state is older than this many control periods stops every unit.
     pub peer_staleness_periods: u32,
+    /// The unit model (URDF), relative to this file's folder.
+    pub urdf: PathBuf,
+    /// The phase gate and agreement settings (`configs/gate.toml`).
+    pub gate: PathBuf,
+    /// The synchronization clamp settings (`configs/sync.toml`).
+    pub sync: PathBuf,
+    /// The mission goals the policies were trained on (`configs/tasks.toml`).
+    pub tasks: PathBuf,
+    /// The folder of the phase policies `lift.safetensors`, `transport.safetensors`,
+    /// `place.safetensors`.
+    pub policies: PathBuf,
+    /// Where this unit's base starts in the team's world frame (all units start from known
+    /// poses); a launcher may override it.
+    pub start_pose: PlanarPose,
+    /// The team's network.
+    pub network: NetworkSettings,
+    /// The mock hardware backend (`--hal mock`).
+    pub mock: MockSettings,
+    /// The CAN backend's drive settings (`--hal can`), e.g. `unit_can.toml`.
+    pub can: PathBuf,
+}
+
+/// `[mock]` of the unit config.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MockSettings {
+    /// The share of the payload's weight the mock gripper reports while closed, N.
+    pub grasp_load_n: f64,
+    /// Arm joint positions the mock starts at (the rest grasp), rad.
+    pub arm_start_rad: [f64; ARM_JOINTS],
 }
 
 /// Most units in a team: each unit's tick evaluates the whole stacked state.
@@ -35,6 +67,16 @@ const MAX_TEAM_NAME_BYTES: usize = 64;
 impl Validate for UnitConfig {
     fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
         self.control_rate_hz = ControlConfig::load_referenced(path, &self.control)?.control_rate_hz;
+        for file in [
+            &mut self.urdf,
+            &mut self.gate,
+            &mut self.sync,
+            &mut self.tasks,
+            &mut self.policies,
+            &mut self.can,
+        ] {
+            *file = config::resolve(path, file);
+        }
         Ok(())
     }
 
@@ -42,6 +84,23 @@ impl Validate for UnitConfig {
     /// the coordination layer also relies on.
     fn validate(&self) -> Result<(), FieldError> {
         count("team_size", self.team_size as u64, 1, MAX_TEAM_SIZE)?;
+        let pose = &self.start_pose;
+        if ![pose.x_m, pose.y_m, pose.yaw_rad]
+            .iter()
+            .all(|v| v.is_finite())
+        {
+            return Err(FieldError::new("start_pose", "must be finite"));
+        }
+        let mock = &self.mock;
+        if !(mock.grasp_load_n.is_finite() && mock.grasp_load_n >= 0.0) {
+            return Err(FieldError::new(
+                "mock.grasp_load_n",
+                "must be a finite force >= 0",
+            ));
+        }
+        if !mock.arm_start_rad.iter().all(|v| v.is_finite()) {
+            return Err(FieldError::new("mock.arm_start_rad", "must be finite"));
+        }
         count(
             "peer_staleness_periods",
             self.peer_staleness_periods.into(),

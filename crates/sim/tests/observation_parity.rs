@@ -2,10 +2,8 @@
 //! readings equals what a unit's daemon computes from its own readings and its peer's state as
 //! decoded from the wire (coord's message codec), bit for bit.
 
-use moonhaul_coord::message::{
-    encode, Announcements, Body, Envelope, Sender, UnitTick, PROTOCOL_VERSION,
-};
-use moonhaul_coord::{TeamSettings, Validator};
+use moonhaul_coord::message::{Announcements, Body, Envelope, Sender, UnitTick, PROTOCOL_VERSION};
+use moonhaul_coord::{KeyFile, TeamSettings, Validator};
 use moonhaul_core::observation::{unit_observation, ACTOR_OBS_DIM};
 use moonhaul_core::state::{Phase, UnitCommand};
 use moonhaul_core::unit::UnitSpec;
@@ -14,6 +12,7 @@ use moonhaul_sim::{BatchEnv, SceneModel, SimConfig};
 
 #[test]
 fn sim_and_onboard_observations_agree_bit_for_bit() {
+    let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
     let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
     // What a daemon loads: the unit URDF, on its own.
     let spec = UnitSpec::from_file(&scene.config.unit_urdf()).unwrap();
@@ -54,16 +53,23 @@ fn sim_and_onboard_observations_agree_bit_for_bit() {
                     announce: Announcements::default(),
                 }),
             };
-            let mut validator = Validator::new(&TeamSettings {
-                team: "moonhaul".into(),
-                team_size: 2,
-                unit_index: unit,
-                control_period_us: 20_000,
-                peer_staleness_periods: 3,
-            });
-            let received = validator
-                .receive_bytes(&encode(&message).unwrap(), tick * 20_000)
+            let mut validator = Validator::new(
+                &TeamSettings {
+                    team: "moonhaul".into(),
+                    team_size: 2,
+                    unit_index: unit,
+                    control_period_us: 20_000,
+                    peer_staleness_periods: 3,
+                },
+                &keys,
+            )
+            .unwrap();
+            let frame = keys
+                .sealer(Sender::Unit(peer))
+                .unwrap()
+                .seal(&message)
                 .unwrap();
+            let received = validator.receive_frame(&frame, tick * 20_000).unwrap();
             let Body::Unit(peer_tick) = received.body else {
                 panic!("not a unit message");
             };

@@ -1,0 +1,622 @@
+//! `moonhaul-unit`, the per-robot daemon: one [`Onboard`] tick per control period over a
+//! unit-level hardware backend, peers and operator over zenoh, a mission log in MCAP.
+//!
+//! The loop runs on tokio. With `--hal mock` or `--hal can` it ticks on a fixed-rate interval
+//! (a late tick is counted as a deadline miss and the schedule skips ahead, never bursts); the
+//! clock is the system's (team-synchronized, e.g. PTP). With `--hal sim` it ticks on each of the
+//! simulated world's readings and the clock is the world's simulated time; in lockstep it also
+//! waits (bounded) for its peers' messages of the previous tick, so a simulated mission is
+//! deterministic. SIGINT or SIGTERM ends in a hold: the hold command is written, the drives are
+//! deactivated and the log is finished before the process exits.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use anyhow::{bail, Context, Result};
+use moonhaul_coord::auth::KeyFile;
+use moonhaul_coord::clamp::hold_command;
+use moonhaul_coord::message::{FaultKind, Sender};
+use moonhaul_coord::{GateConfig, SyncConfig, Validator};
+use moonhaul_core::observation::check_layout;
+use moonhaul_core::policy::Policy;
+use moonhaul_core::state::{Phase, PlanarPose};
+use moonhaul_core::task_config::TaskConfig;
+use moonhaul_core::unit::UnitSpec;
+use moonhaul_hal::can::UnitCanConfig;
+use moonhaul_hal::mock::MockConfig;
+use moonhaul_hal::unit::{
+    emulated_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput, UnitReading,
+};
+use tracing::{info, warn};
+
+use crate::mission_log::UnitLog;
+use crate::network::{self, Keys};
+use crate::record::TickRecord;
+use crate::sim_link::{self, SimHardware, SimSensed};
+use crate::tick::{Onboard, OnboardSettings, PhasePolicies};
+use crate::unit_config::UnitConfig;
+
+/// Which hardware backend the daemon drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum HalKind {
+    /// The unit's nine CiA 402 drives (emulated on a virtual bus: this build has no kernel CAN
+    /// transport wired to the daemon).
+    Can,
+    /// Mock drives that mirror their commands, with fault injection.
+    Mock,
+    /// One unit of a simulated world running in another process (`moonhaul mission world`).
+    Sim,
+}
+
+/// A fault to inject at a given time, for tests and drills: `motor:3@2.5` (joint 3 at 2.5 s
+/// after start), `emcy:0@1`, `heartbeat:8@4`, `nan:2@1` on the mock or emulated CAN drives;
+/// `policy-nan@3` makes the policy's output non-finite; `drop-peers@3` drops all peer traffic
+/// (a network partition) from then on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Injection {
+    pub at_s: f64,
+    pub what: Injected,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Injected {
+    Hardware(InjectedFault),
+    PolicyNan,
+    DropPeers,
+}
+
+impl std::str::FromStr for Injection {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "{s:?}: expected KIND[:JOINT]@SECONDS, KIND one of motor, emcy, heartbeat, nan, \
+                 policy-nan, drop-peers"
+            )
+        };
+        let (what, at) = s.split_once('@').ok_or_else(bad)?;
+        let at_s: f64 = at.parse().map_err(|_| bad())?;
+        if !(at_s.is_finite() && at_s >= 0.0) {
+            return Err(bad());
+        }
+        let (kind, joint) = match what.split_once(':') {
+            Some((k, j)) => (k, Some(j.parse::<usize>().map_err(|_| bad())?)),
+            None => (what, None),
+        };
+        let what = match (kind, joint) {
+            ("policy-nan", None) => Injected::PolicyNan,
+            ("drop-peers", None) => Injected::DropPeers,
+            ("motor", Some(joint)) => Injected::Hardware(InjectedFault::Motor { joint }),
+            ("emcy", Some(joint)) => Injected::Hardware(InjectedFault::Emcy { joint }),
+            ("heartbeat", Some(joint)) => {
+                Injected::Hardware(InjectedFault::HeartbeatLoss { joint })
+            }
+            ("nan", Some(joint)) => Injected::Hardware(InjectedFault::SensorNan { joint }),
+            _ => return Err(bad()),
+        };
+        Ok(Injection { at_s, what })
+    }
+}
+
+/// `moonhaul-unit`'s command line.
+#[derive(Debug, clap::Parser)]
+#[command(
+    name = "moonhaul-unit",
+    version,
+    about = "The per-robot moonhaul daemon"
+)]
+pub struct DaemonArgs {
+    /// The unit config (TOML), e.g. configs/unit.toml.
+    #[arg(long, value_name = "FILE")]
+    pub config: PathBuf,
+    /// Hardware backend.
+    #[arg(long, value_enum)]
+    pub hal: HalKind,
+    /// The team's key file (`moonhaul keys generate`); kept outside the repository's configs.
+    #[arg(long, value_name = "FILE")]
+    pub keys: PathBuf,
+    /// Overrides the config's unit index.
+    #[arg(long)]
+    pub unit_index: Option<usize>,
+    /// Overrides the config's start pose: `x_m,y_m,yaw_rad`.
+    #[arg(long, value_name = "X,Y,YAW", allow_hyphen_values = true)]
+    pub start_pose: Option<String>,
+    /// Overrides the config's zenoh endpoints to connect to (repeatable).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// Overrides the config's zenoh endpoints to listen on (repeatable).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// Write the mission log (MCAP) here.
+    #[arg(long, value_name = "FILE")]
+    pub log: Option<PathBuf>,
+    /// With `--hal sim`: the world steps on the wall clock; do not wait for peers.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Add this offset to the unit's clock, ms (a drill for clock faults).
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        allow_negative_numbers = true,
+        value_name = "MS"
+    )]
+    pub clock_offset_ms: f64,
+    /// Inject a fault (repeatable): see [`Injection`].
+    #[arg(long, value_name = "KIND[:JOINT]@S")]
+    pub inject: Vec<Injection>,
+    /// Exit (in a hold) after this many seconds of unit time.
+    #[arg(long, value_name = "S")]
+    pub max_runtime_s: Option<f64>,
+}
+
+/// Loads a phase policy and checks it is one a unit runs for `phase`.
+pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
+    let policy =
+        Policy::from_file(path).with_context(|| format!("loading policy {}", path.display()))?;
+    let meta = policy.metadata();
+    if meta.phase != phase {
+        bail!(
+            "policy {} drives {}, not {}",
+            path.display(),
+            meta.phase,
+            phase
+        );
+    }
+    check_layout(&meta.extra).with_context(|| format!("policy {}", path.display()))?;
+    Ok(policy)
+}
+
+/// The three phase policies of a folder (`lift.safetensors`, …).
+pub fn load_policies(folder: &Path) -> Result<PhasePolicies> {
+    let load = |phase: Phase| load_policy(&folder.join(format!("{phase}.safetensors")), phase);
+    Ok(PhasePolicies {
+        lift: load(Phase::Lift)?,
+        transport: load(Phase::Transport)?,
+        place: load(Phase::Place)?,
+    })
+}
+
+fn parse_pose(text: &str) -> Result<PlanarPose> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|s| s.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--start-pose {text:?}: expected x_m,y_m,yaw_rad"))?;
+    match v[..] {
+        [x_m, y_m, yaw_rad] if v.iter().all(|x| x.is_finite()) => {
+            Ok(PlanarPose { x_m, y_m, yaw_rad })
+        }
+        _ => bail!("--start-pose {text:?}: expected three finite numbers x_m,y_m,yaw_rad"),
+    }
+}
+
+/// The daemon's hardware: one backend, with what only some backends have.
+enum Hardware {
+    Mock(Box<MockUnit>),
+    Can(Box<dyn CanUnit>),
+    Sim(Box<SimHardware>),
+}
+
+/// The CAN master on the emulated bus, as the daemon uses it.
+trait CanUnit: UnitHardware + FaultInjection {}
+impl<T: UnitHardware + FaultInjection> CanUnit for T {}
+
+impl Hardware {
+    fn unit(&mut self) -> &mut dyn UnitHardware {
+        match self {
+            Hardware::Mock(m) => m.as_mut(),
+            Hardware::Can(c) => c.as_mut(),
+            Hardware::Sim(s) => s.as_mut(),
+        }
+    }
+
+    fn inject(&mut self, fault: InjectedFault) -> Result<(), moonhaul_hal::HalError> {
+        match self {
+            Hardware::Mock(m) => m.inject(fault),
+            Hardware::Can(c) => c.inject(fault),
+            Hardware::Sim(_) => Err(moonhaul_hal::HalError::Bus {
+                bus: "sim".into(),
+                reason: format!("cannot inject {fault} into the simulated world's drives"),
+            }),
+        }
+    }
+}
+
+/// The system clock in µs since the Unix epoch.
+fn wall_us() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+fn offset_us(t_us: u64, offset_ms: f64) -> u64 {
+    let off = (offset_ms * 1e3).round() as i64;
+    t_us.saturating_add_signed(off)
+}
+
+/// Runs the daemon until a signal or `--max-runtime-s`; every exit path finishes the log.
+pub async fn run(args: DaemonArgs) -> Result<()> {
+    let mut config = UnitConfig::from_file(&args.config)?;
+    if let Some(i) = args.unit_index {
+        config.unit_index = i;
+        config
+            .team_settings()
+            .validate()
+            .with_context(|| format!("--unit-index {i}"))?;
+    }
+    if let Some(pose) = &args.start_pose {
+        config.start_pose = parse_pose(pose)?;
+    }
+    let mut net = config.network.clone();
+    if !args.connect.is_empty() {
+        net.connect = args.connect.clone();
+    }
+    if !args.listen.is_empty() {
+        net.listen = args.listen.clone();
+    }
+    let settings = config.team_settings();
+    let unit = settings.unit_index;
+    let keys = KeyFile::load(&args.keys)?;
+    keys.check_matches(&settings)
+        .with_context(|| format!("key file {}", args.keys.display()))?;
+    let sealer = keys.sealer(Sender::Unit(unit))?;
+    let mut validator = Validator::new(&settings, &keys)?;
+    let spec = UnitSpec::from_file(&config.urdf)
+        .with_context(|| format!("unit model {}", config.urdf.display()))?;
+    let gate = GateConfig::from_file(&config.gate)?;
+    let sync = SyncConfig::from_file(&config.sync)?;
+    let tasks = TaskConfig::load(&config.tasks)?;
+    let policies = load_policies(&config.policies)?;
+    let period = Duration::from_micros(settings.control_period_us);
+    let mut hardware = match args.hal {
+        HalKind::Mock => Hardware::Mock(Box::new(MockUnit::new(
+            period,
+            MockConfig::ideal(period),
+            &spec,
+            &config.mock.arm_start_rad,
+            config.mock.grasp_load_n,
+        )?)),
+        HalKind::Can => {
+            let can = UnitCanConfig::from_file(&config.can)?;
+            Hardware::Can(Box::new(
+                emulated_unit(&can).context("bringing up the unit's CAN drives")?,
+            ))
+        }
+        HalKind::Sim => Hardware::Sim(Box::new(SimHardware::new(unit))),
+    };
+    let mut log = match &args.log {
+        Some(path) => Some(UnitLog::create(path, unit)?),
+        None => None,
+    };
+    let session = network::open(&net).await?;
+    let keyx = Keys::new(&settings.team);
+    let state_pub = network::control_publisher(&session, keyx.unit_state(unit)).await?;
+    let peers = session
+        .declare_subscriber(keyx.all_unit_states())
+        .await
+        .map_err(|e| anyhow::anyhow!("zenoh subscriber: {e}"))?;
+    let operator = session
+        .declare_subscriber(keyx.operator())
+        .await
+        .map_err(|e| anyhow::anyhow!("zenoh subscriber: {e}"))?;
+    let sim_io = if args.hal == HalKind::Sim {
+        let sensed = session
+            .declare_subscriber(keyx.sim_sensed(unit))
+            .await
+            .map_err(|e| anyhow::anyhow!("zenoh subscriber: {e}"))?;
+        let command = network::control_publisher(&session, keyx.sim_command(unit)).await?;
+        Some((sensed, command))
+    } else {
+        None
+    };
+
+    hardware
+        .unit()
+        .activate()
+        .context("activating the drives")?;
+    // Sequence numbers start at the unit's clock at boot (message.rs's convention). On the
+    // simulated world the clock is the world's time, which a unit only learns at its first
+    // reading: it starts from 0 and the first message takes the clock then.
+    let boot_us = match args.hal {
+        HalKind::Sim => 0,
+        HalKind::Mock | HalKind::Can => offset_us(wall_us(), args.clock_offset_ms),
+    };
+    let mut onboard = Onboard::new(
+        OnboardSettings {
+            spec,
+            team: settings.clone(),
+            gate,
+            sync,
+            tasks,
+            start_pose: config.start_pose,
+        },
+        policies,
+        boot_us,
+    )?;
+    info!(unit, hal = ?args.hal, team = %settings.team, "unit daemon up");
+
+    let mut interval = tokio::time::interval(period);
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("installing the SIGTERM handler")?;
+    let mut reading = UnitReading::default();
+    let mut record = TickRecord::for_team(settings.team_size);
+    let mut frame = Vec::with_capacity(1024);
+    let mut start_us: Option<u64> = None;
+    let mut pending = args.inject.clone();
+    let mut drop_peers = false;
+    let mut policy_nan = false;
+    let mut deadline_misses = 0u64;
+    let mut last_rejections = 0u64;
+    let lockstep = args.hal == HalKind::Sim && !args.realtime;
+    let stop_reason: &str = loop {
+        // Wait for the tick: the interval, or the world's next reading.
+        let wake = tokio::select! {
+            _ = tokio::signal::ctrl_c() => Wake::Stop("SIGINT"),
+            _ = sigterm.recv() => Wake::Stop("SIGTERM"),
+            w = next_tick(&mut interval, sim_io.as_ref().map(|(s, _)| s), &mut hardware, unit) => w,
+        };
+        let now_us = match wake {
+            Wake::Stop(why) => break why,
+            Wake::Skip => continue,
+            Wake::Tick(t_us) => offset_us(t_us, args.clock_offset_ms),
+        };
+        let work_start = Instant::now();
+        let t0 = *start_us.get_or_insert(now_us);
+        let elapsed_s = now_us.saturating_sub(t0) as f64 * 1e-6;
+        if args.max_runtime_s.is_some_and(|m| elapsed_s >= m) {
+            break "the runtime limit";
+        }
+        // Injections due.
+        let mut k = 0;
+        while k < pending.len() {
+            if pending[k].at_s <= elapsed_s {
+                let due = pending.swap_remove(k);
+                warn!(unit, at_s = due.at_s, what = ?due.what, "injecting a fault");
+                match due.what {
+                    Injected::Hardware(f) => {
+                        if let Err(e) = hardware.inject(f) {
+                            warn!(unit, error = %e, "injection refused");
+                        }
+                    }
+                    Injected::PolicyNan => policy_nan = true,
+                    Injected::DropPeers => drop_peers = true,
+                }
+            } else {
+                k += 1;
+            }
+        }
+        let own_key = keyx.unit_state(unit);
+        if lockstep {
+            wait_for_peers(
+                &peers,
+                &own_key,
+                &mut validator,
+                &mut onboard,
+                now_us,
+                settings.control_period_us,
+                drop_peers,
+            )
+            .await;
+        }
+        let read = hardware.unit().read(&mut reading);
+        if let Err(e) = &read {
+            warn!(unit, error = %e, "hardware read failed");
+        }
+        if let Some(e) = hardware.unit().fault() {
+            if onboard.fault().is_none() {
+                warn!(unit, error = %e, "drive fault");
+            }
+            onboard.latch_fault(FaultKind::Drive, "drive fault");
+        }
+        drain(
+            &peers,
+            &own_key,
+            &mut validator,
+            &mut onboard,
+            now_us,
+            drop_peers,
+        );
+        drain(
+            &operator,
+            &own_key,
+            &mut validator,
+            &mut onboard,
+            now_us,
+            false,
+        );
+        if policy_nan {
+            onboard.latch_fault(FaultKind::Policy, "non-finite policy output (injected)");
+        }
+        let before = onboard.phase();
+        let out = onboard.tick(
+            now_us,
+            read.is_ok().then_some(&reading),
+            validator.counts(),
+            &mut record,
+        );
+        let output = out.output;
+        let sealed = sealer.seal_into(out.message, &mut frame);
+        if let Hardware::Sim(hw) = &mut hardware {
+            hw.set_phase(record.phase);
+        }
+        if let Err(e) = hardware.unit().write(&output) {
+            warn!(unit, error = %e, "hardware write failed");
+            onboard.latch_fault(FaultKind::Drive, "hardware write failed");
+        }
+        if let (Hardware::Sim(hw), Some((_, command_pub))) = (&mut hardware, &sim_io) {
+            if let Some(c) = hw.take_command() {
+                if let Err(e) = network::put(command_pub, &sim_link::encode(&c)).await {
+                    warn!(unit, error = %e, "sim link publish failed");
+                }
+            }
+        }
+        match sealed {
+            Ok(()) => {
+                if let Err(e) = network::put(&state_pub, &frame).await {
+                    warn!(unit, error = %e, "state publish failed");
+                }
+            }
+            Err(e) => warn!(unit, error = %e, "state message not sent"),
+        }
+        if record.phase != before {
+            info!(unit, from = %before, to = %record.phase, t_s = elapsed_s, "phase");
+        }
+        let rejected = validator.counts().total();
+        if rejected > last_rejections {
+            warn!(unit, total = rejected, counts = ?validator.counts(), "messages rejected");
+            last_rejections = rejected;
+        }
+        let work = work_start.elapsed();
+        if args.hal != HalKind::Sim && work > period {
+            deadline_misses += 1;
+        }
+        record.deadline_misses = deadline_misses;
+        record.work_us = work.as_micros() as u64;
+        if let Some(log) = &mut log {
+            if let Err(e) = log.write(&record) {
+                warn!(unit, error = %e, "mission log write failed");
+            }
+        }
+    };
+    info!(
+        unit,
+        reason = stop_reason,
+        "stopping: holding and flushing the log"
+    );
+    // The hold: arm at its sensed position, wheels stopped, then torque off.
+    let mut hold = UnitReading::default();
+    if hardware.unit().read(&mut hold).is_ok() {
+        let mut s = moonhaul_core::state::UnitState::default();
+        s.arm.position_rad = hold.arm.position_rad;
+        let command = hold_command(&s);
+        let _ = hardware.unit().write(&UnitOutput {
+            command,
+            grasp_open: record.grasp_open,
+        });
+        if let (Hardware::Sim(hw), Some((_, command_pub))) = (&mut hardware, &sim_io) {
+            if let Some(c) = hw.take_command() {
+                let _ = network::put(command_pub, &sim_link::encode(&c)).await;
+            }
+        }
+    }
+    if let Err(e) = hardware.unit().deactivate() {
+        warn!(unit, error = %e, "deactivating the drives");
+    }
+    if let Some(log) = log {
+        log.finish().context("finishing the mission log")?;
+    }
+    let _ = session.close().await;
+    info!(unit, "unit daemon down");
+    Ok(())
+}
+
+/// What ends a wait for the next tick.
+enum Wake {
+    /// Tick at this clock reading, µs (before the drill offset).
+    Tick(u64),
+    /// Nothing to do (a malformed or repeated reading).
+    Skip,
+    Stop(&'static str),
+}
+
+/// The next tick: the interval's, or the world's next reading (the newest one waiting).
+async fn next_tick(
+    interval: &mut tokio::time::Interval,
+    sensed: Option<&Subscriber>,
+    hardware: &mut Hardware,
+    unit: usize,
+) -> Wake {
+    let Some(sub) = sensed else {
+        interval.tick().await;
+        return Wake::Tick(wall_us());
+    };
+    let Ok(sample) = sub.recv_async().await else {
+        return Wake::Stop("the world's link closed");
+    };
+    let mut newest = match SimSensed::decode(&sample.payload().to_bytes(), unit) {
+        Ok(s) => s,
+        Err(e) => {
+            warn!(unit, error = %e, "dropped a sim link frame");
+            return Wake::Skip;
+        }
+    };
+    // Drain to the newest reading: a unit never ticks on old news.
+    while let Ok(Some(more)) = sub.try_recv() {
+        if let Ok(m) = SimSensed::decode(&more.payload().to_bytes(), unit) {
+            if m.tick >= newest.tick {
+                newest = m;
+            }
+        }
+    }
+    let Hardware::Sim(hw) = hardware else {
+        return Wake::Skip;
+    };
+    if hw.latest().is_some_and(|l| l.tick >= newest.tick) {
+        // The world re-sends a reading until every unit answered it.
+        return Wake::Skip;
+    }
+    hw.deliver(newest);
+    Wake::Tick(newest.stamp_us)
+}
+
+type Subscriber =
+    zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+
+/// Validates and takes in every message waiting on `sub` (this unit's own state, which the
+/// team subscription also delivers, is skipped).
+fn drain(
+    sub: &Subscriber,
+    own_key: &str,
+    validator: &mut Validator,
+    onboard: &mut Onboard,
+    now_us: u64,
+    drop: bool,
+) {
+    while let Ok(Some(sample)) = sub.try_recv() {
+        if !drop {
+            take(&sample, own_key, validator, onboard, now_us);
+        }
+    }
+}
+
+fn take(
+    sample: &zenoh::sample::Sample,
+    own_key: &str,
+    validator: &mut Validator,
+    onboard: &mut Onboard,
+    now_us: u64,
+) {
+    if sample.key_expr().as_str() == own_key {
+        return;
+    }
+    let bytes = sample.payload().to_bytes();
+    match validator.receive_frame(&bytes, now_us) {
+        Ok(envelope) => onboard.receive(&envelope),
+        Err(rejection) => tracing::debug!(unit = onboard.unit(), %rejection, "rejected"),
+    }
+}
+
+/// Lockstep only: waits (at most a few hundred ms of wall time) until every peer's message of
+/// the previous tick is in, taking them in as they come; a silent peer is then judged by the
+/// staleness rule on message stamps, like any other.
+async fn wait_for_peers(
+    sub: &Subscriber,
+    own_key: &str,
+    validator: &mut Validator,
+    onboard: &mut Onboard,
+    now_us: u64,
+    period_us: u64,
+    drop: bool,
+) {
+    const PEER_WAIT: Duration = Duration::from_millis(300);
+    let wanted = now_us.saturating_sub(period_us);
+    let deadline = tokio::time::Instant::now() + PEER_WAIT;
+    while !drop && !onboard.peers_heard_since(wanted) {
+        let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await else {
+            return;
+        };
+        take(&sample, own_key, validator, onboard, now_us);
+    }
+}

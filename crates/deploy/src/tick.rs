@@ -1,0 +1,589 @@
+//! One unit's control tick, the onboard corridor of DESIGN.md in one place:
+//!
+//! hal reading → own state and wheel odometry → grasp FK → peers' latest published states →
+//! team agreement and phase gate (measurements from onboard estimates only) → observation
+//! (core's [`unit_observation`], the function training used) → active policy (core's MLP) →
+//! synchronization clamp → hardware output → mission-log record and the message to publish.
+//!
+//! [`Onboard`] is transport- and clock-free: the daemon feeds it validated peer messages
+//! ([`Onboard::receive`]) and one hardware reading per tick ([`Onboard::tick`]), then writes
+//! the returned output to its hardware and publishes the returned message. Integration tests
+//! run whole teams of it in one process; the daemon runs one per process over zenoh. After
+//! construction a tick allocates nothing.
+//!
+//! **Choices the paper leaves open** (written down here, where they are made):
+//! - *Peers lag one tick.* A unit ticks on its own reading and its peers' newest messages, which
+//!   were sent at the end of their previous tick: a distributed 50 Hz team cannot see a peer's
+//!   state of the same instant. Training saw same-instant peer states; 20 ms is inside the
+//!   clamp's tolerances at the commanded speeds.
+//! - *The clamp across units.* Each unit runs the clamp on the whole stacked state: its own
+//!   S = U_{k-1} and F = policy target, and for each peer S = F = the command the peer last
+//!   published (a peer's target of this tick is unknowable). A peer lagging its own command
+//!   beyond tolerance therefore makes every step of this unit inadmissible, so it holds — the
+//!   synchronization the clamp exists for.
+//! - *Measurements for the gate.* Payload height: the mean over the units of the FK lift of
+//!   the cargo (own arm, and the peer's arm from its published joints). Goal distance: this
+//!   unit's odometric distance to its phase goal. Release: this unit's own grasp force (a wrist
+//!   force estimate where the hardware has one; otherwise 0 once its gripper is open and
+//!   unbounded before), entered for every unit: the barrier then commits Place → Idle only when
+//!   every unit has seen its own grasp let go.
+//! - *Opening the gripper.* The gripper is not part of u⁽ⁱ⁾. In Place, once the estimated lift
+//!   has been at or below the gate's resting height for `place.release_after_contact_s` of
+//!   ticks in total (the simulator's release rule, on the onboard estimate instead of contact
+//!   truth), the unit opens its gripper.
+//! - *Faults latch.* A drive fault, a non-finite reading or a non-finite policy output stops
+//!   the team (σ) and keeps this unit stopped, announcing why, until the daemon restarts.
+
+use moonhaul_coord::clamp::hold_command;
+use moonhaul_coord::message::{
+    Announcements, Body, Envelope, FaultKind, RejectCounts, Sender, UnitTick, PROTOCOL_VERSION,
+};
+use moonhaul_coord::{
+    Clamp, ClampInput, Decision, Directive, GateConfig, HoldReason, Measurements, SyncConfig, Team,
+    TeamSettings, UnitModel,
+};
+use moonhaul_core::observation::{
+    field_range, unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM,
+};
+use moonhaul_core::policy::{Policy, PolicyScratch};
+use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
+use moonhaul_core::task_config::TaskConfig;
+use moonhaul_core::unit::UnitSpec;
+use moonhaul_hal::unit::{UnitOutput, UnitReading};
+use nalgebra::Vector2;
+
+use crate::record::TickRecord;
+
+/// The three phase policies a unit flies.
+pub struct PhasePolicies {
+    pub lift: Policy,
+    pub transport: Policy,
+    pub place: Policy,
+}
+
+impl PhasePolicies {
+    fn get(&self, phase: Phase) -> Option<&Policy> {
+        match phase {
+            Phase::Lift => Some(&self.lift),
+            Phase::Transport => Some(&self.transport),
+            Phase::Place => Some(&self.place),
+            Phase::Idle => None,
+        }
+    }
+}
+
+/// Everything a unit's tick is configured with.
+pub struct OnboardSettings {
+    pub spec: UnitSpec,
+    pub team: TeamSettings,
+    pub gate: GateConfig,
+    pub sync: SyncConfig,
+    /// The mission goals: lift height, transport distance and profile, release rule.
+    pub tasks: TaskConfig,
+    /// Where this unit's base starts, in the team's shared world frame.
+    pub start_pose: PlanarPose,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum OnboardError {
+    #[error(transparent)]
+    Team(#[from] moonhaul_coord::TeamError),
+    #[error(transparent)]
+    Clamp(#[from] moonhaul_coord::clamp::ClampError),
+    #[error("the observation layout has no field {0}")]
+    Layout(&'static str),
+    #[error("{phase} policy maps {obs} observations to {actions} actions; a unit needs {ACTOR_OBS_DIM} → {UNIT_ACTION_DIM}")]
+    PolicyShape {
+        phase: Phase,
+        obs: usize,
+        actions: usize,
+    },
+}
+
+/// What this unit knows of a peer from its newest accepted message.
+#[derive(Debug, Clone, Copy, Default)]
+struct PeerState {
+    stamp_us: Option<u64>,
+    state: UnitState,
+    command: UnitCommand,
+}
+
+/// The phase episode in progress: what its goals are measured from.
+#[derive(Debug, Clone, Copy)]
+struct PhaseEpisode {
+    phase: Phase,
+    start_base: PlanarPose,
+    start_us: u64,
+}
+
+/// What one tick hands back to the daemon.
+pub struct TickOutput<'a> {
+    /// To write to the hardware.
+    pub output: UnitOutput,
+    /// To publish to the team.
+    pub message: &'a Envelope,
+}
+
+/// One unit's onboard logic; see the module docs.
+pub struct Onboard {
+    spec: UnitSpec,
+    unit: usize,
+    period_s: f64,
+    gate: GateConfig,
+    tasks: TaskConfig,
+    team: Team,
+    clamp: Clamp,
+    policies: PhasePolicies,
+    scratch: [PolicyScratch; 3],
+    lift_index: usize,
+    peer_lift_index: usize,
+    odometry: PlanarPose,
+    /// U_{k-1} of this unit.
+    previous: UnitCommand,
+    peers: Vec<PeerState>,
+    reference: Option<GraspReference>,
+    episode: PhaseEpisode,
+    grasp_open: bool,
+    resting_s: f64,
+    latched_fault: Option<(FaultKind, &'static str)>,
+    last_announce: Announcements,
+    tick: u64,
+    seq: u64,
+    // Reused per tick, so the tick does not allocate.
+    sensed: Vec<UnitState>,
+    previous_all: Vec<UnitCommand>,
+    target_all: Vec<UnitCommand>,
+    issued_all: Vec<UnitCommand>,
+    forces: Vec<f64>,
+    message: Envelope,
+}
+
+impl Onboard {
+    /// `boot_us`: the clock at start, the first sequence number (message.rs's convention, so a
+    /// restarted unit never reuses one).
+    pub fn new(
+        settings: OnboardSettings,
+        policies: PhasePolicies,
+        boot_us: u64,
+    ) -> Result<Self, OnboardError> {
+        for (phase, policy) in [
+            (Phase::Lift, &policies.lift),
+            (Phase::Transport, &policies.transport),
+            (Phase::Place, &policies.place),
+        ] {
+            let m = policy.metadata();
+            if m.obs_dim != ACTOR_OBS_DIM || m.action_dim != UNIT_ACTION_DIM {
+                return Err(OnboardError::PolicyShape {
+                    phase,
+                    obs: m.obs_dim,
+                    actions: m.action_dim,
+                });
+            }
+        }
+        let field = |name: &'static str| field_range(name).ok_or(OnboardError::Layout(name));
+        let lift_index = field("cargo.ee_displacement_m")?.start + 2;
+        let peer_lift_index = field("peer.ee_displacement_m")?.start + 2;
+        let n = settings.team.team_size;
+        let unit = settings.team.unit_index;
+        let period_s = settings.team.control_period_us as f64 * 1e-6;
+        let team = Team::new(settings.team.clone(), &settings.gate)?;
+        let clamp = Clamp::new(
+            UnitModel::new(settings.spec.clone()),
+            &settings.sync,
+            period_s,
+            n,
+        )?;
+        let scratch = [
+            policies.lift.scratch(),
+            policies.transport.scratch(),
+            policies.place.scratch(),
+        ];
+        let message = Envelope {
+            version: PROTOCOL_VERSION,
+            team: settings.team.team.clone(),
+            sender: Sender::Unit(unit),
+            seq: boot_us,
+            stamp_us: boot_us,
+            body: Body::Unit(UnitTick {
+                phase: Phase::Idle,
+                state: UnitState::default(),
+                command: UnitCommand::default(),
+                announce: Announcements::default(),
+            }),
+        };
+        Ok(Onboard {
+            spec: settings.spec,
+            unit,
+            period_s,
+            gate: settings.gate,
+            tasks: settings.tasks,
+            team,
+            clamp,
+            policies,
+            scratch,
+            lift_index,
+            peer_lift_index,
+            odometry: settings.start_pose,
+            previous: UnitCommand::default(),
+            peers: vec![PeerState::default(); n],
+            reference: None,
+            episode: PhaseEpisode {
+                phase: Phase::Idle,
+                start_base: settings.start_pose,
+                start_us: boot_us,
+            },
+            grasp_open: false,
+            resting_s: 0.0,
+            latched_fault: None,
+            last_announce: Announcements::default(),
+            tick: 0,
+            seq: boot_us,
+            sensed: vec![UnitState::default(); n],
+            previous_all: vec![UnitCommand::default(); n],
+            target_all: vec![UnitCommand::default(); n],
+            issued_all: vec![UnitCommand::default(); n],
+            forces: vec![0.0; n],
+            message,
+        })
+    }
+
+    pub fn unit(&self) -> usize {
+        self.unit
+    }
+
+    /// The committed phase.
+    pub fn phase(&self) -> Phase {
+        self.team.phase()
+    }
+
+    /// Whether every peer's newest accepted state is stamped at or after `stamp_us`.
+    pub fn peers_heard_since(&self, stamp_us: u64) -> bool {
+        self.peers
+            .iter()
+            .enumerate()
+            .all(|(i, p)| i == self.unit || p.stamp_us.is_some_and(|t| t >= stamp_us))
+    }
+
+    /// This unit's own latched fault, if any.
+    pub fn fault(&self) -> Option<FaultKind> {
+        self.latched_fault.map(|(kind, _)| kind)
+    }
+
+    /// Takes in one message that passed the validator.
+    pub fn receive(&mut self, message: &Envelope) {
+        if let (Sender::Unit(i), Body::Unit(tick)) = (message.sender, &message.body) {
+            if let Some(peer) = self.peers.get_mut(i).filter(|_| i != self.unit) {
+                if peer.stamp_us.is_none_or(|t| message.stamp_us >= t) {
+                    peer.stamp_us = Some(message.stamp_us);
+                    peer.state = tick.state;
+                    peer.command = tick.command;
+                }
+            }
+        }
+        self.team.receive(message);
+    }
+
+    /// Latches a fault found outside the tick (the daemon's hardware read or write failed).
+    pub fn latch_fault(&mut self, kind: FaultKind, what: &'static str) {
+        self.latched_fault.get_or_insert((kind, what));
+    }
+
+    /// One control tick at local (team-synchronized) time `now_us` on `reading`; `None` when
+    /// the hardware read failed this tick. Fills `record` in place.
+    pub fn tick(
+        &mut self,
+        now_us: u64,
+        reading: Option<&UnitReading>,
+        rejected: &RejectCounts,
+        record: &mut TickRecord,
+    ) -> TickOutput<'_> {
+        self.tick += 1;
+        let own = match reading {
+            Some(r) if reading_is_finite(r) => self.own_state(r),
+            Some(_) => {
+                self.latch_fault(FaultKind::Sensor, "non-finite joint reading");
+                self.sensed[self.unit]
+            }
+            None => {
+                self.latch_fault(FaultKind::Drive, "hardware read failed");
+                self.sensed[self.unit]
+            }
+        };
+        let force_n = reading.and_then(|r| r.grasp_force_n);
+        for (i, peer) in self.peers.iter().enumerate() {
+            if i != self.unit {
+                self.sensed[i] = peer.state;
+                self.previous_all[i] = peer.command;
+                self.target_all[i] = peer.command;
+            }
+        }
+        self.sensed[self.unit] = own;
+        self.previous_all[self.unit] = self.previous;
+
+        let mut obs = [0.0; ACTOR_OBS_DIM];
+        let goal = self.goal(now_us);
+        let observed = self.observe(&goal, &mut obs);
+        let lift_estimate_m = if observed {
+            (obs[self.lift_index] + obs[self.peer_lift_index]) / 2.0
+        } else {
+            f64::NAN
+        };
+        let own_force = match force_n {
+            Some(f) => f,
+            None if self.grasp_open => 0.0,
+            None => f64::INFINITY,
+        };
+        self.forces.fill(own_force);
+        let goal_distance_m =
+            (goal.base_goal_m - Vector2::new(self.odometry.x_m, self.odometry.y_m)).norm();
+        let before = self.team.phase();
+        let decision = self.team.tick(
+            now_us,
+            &Measurements {
+                payload_height_m: lift_estimate_m,
+                goal_distance_m,
+                grasp_force_n: &self.forces,
+            },
+            self.fault(),
+        );
+        if decision.phase != before {
+            self.begin_phase(decision.phase, now_us, &own);
+        }
+        let (hold, target) = self.target(&decision, now_us, &own, &mut obs);
+        let target = match target {
+            Some(t) => t,
+            None => {
+                self.latch_fault(FaultKind::Policy, "non-finite policy output");
+                hold_command(&own)
+            }
+        };
+        let hold = hold.or_else(|| {
+            self.fault()
+                .map(|f| HoldReason::SafetyStop(moonhaul_coord::message::StopReason::Fault(f)))
+        });
+        self.target_all[self.unit] = target;
+        let report = self.clamp.step(
+            &ClampInput {
+                sensed: &self.sensed,
+                previous: &self.previous_all,
+                target: &self.target_all,
+            },
+            hold,
+            &mut self.issued_all,
+        );
+        let (issued, report) = match report {
+            Ok(r) => (self.issued_all[self.unit], Some(r)),
+            Err(_) => {
+                // Only non-finite inputs fail the clamp, and those latch above; hold anyway.
+                self.latch_fault(FaultKind::Policy, "clamp rejected its inputs");
+                (hold_command(&own), None)
+            }
+        };
+        self.previous = issued;
+        if decision.phase == Phase::Place && hold.is_none() {
+            self.update_release(lift_estimate_m);
+        }
+        self.last_announce = decision.announce;
+        self.fill_message(now_us, decision.phase, own, issued);
+
+        record.unit = self.unit;
+        record.tick = self.tick;
+        record.stamp_us = now_us;
+        record.phase = decision.phase;
+        record.hold = report.and_then(|r| r.hold).or(hold);
+        record.t_max = report.map_or(0.0, |r| r.t_max);
+        record.distance = report.and_then(|r| r.distance);
+        record.sensed = own;
+        record.grasp_force_n = force_n;
+        record.grasp_open = self.grasp_open;
+        record.target = target;
+        record.issued = issued;
+        record.peer_age_us.clear();
+        for (i, peer) in self.peers.iter().enumerate() {
+            let age = peer
+                .stamp_us
+                .filter(|_| i != self.unit)
+                .map(|t| now_us.saturating_sub(t));
+            record.peer_age_us.push(age);
+        }
+        record.fault = None;
+        if let Some((_, what)) = self.latched_fault {
+            record.fault = Some(what.to_owned());
+        }
+        record.rejected = *rejected;
+        TickOutput {
+            output: UnitOutput {
+                command: issued,
+                grasp_open: self.grasp_open,
+            },
+            message: &self.message,
+        }
+    }
+
+    /// Own state from a reading: joints as read, base pose by wheel odometry.
+    fn own_state(&mut self, r: &UnitReading) -> UnitState {
+        let mut s = UnitState::default();
+        s.wheels.position_rad = r.wheels.position_rad;
+        s.wheels.velocity_radps = r.wheels.velocity_radps;
+        s.arm.position_rad = r.arm.position_rad;
+        s.arm.velocity_radps = r.arm.velocity_radps;
+        if self.tick > 1 {
+            self.odometry =
+                self.spec
+                    .integrate_base(&self.odometry, &r.wheels.velocity_radps, self.period_s);
+        }
+        s.base_pose = self.odometry;
+        s.base_velocity = self.spec.base_velocity(&r.wheels.velocity_radps);
+        s
+    }
+
+    /// The goal of the phase episode in progress at `now_us`.
+    fn goal(&self, now_us: u64) -> PhaseGoal {
+        let t = &self.tasks.transport;
+        let e = &self.episode;
+        let start = Vector2::new(e.start_base.x_m, e.start_base.y_m);
+        let phase_s = now_us.saturating_sub(e.start_us) as f64 * 1e-6;
+        match e.phase {
+            Phase::Idle | Phase::Lift => PhaseGoal {
+                height_m: t.start_height_m,
+                base_goal_m: start,
+                velocity_mps: Vector2::zeros(),
+            },
+            Phase::Transport => PhaseGoal {
+                height_m: t.start_height_m,
+                base_goal_m: start + Vector2::new(t.distance_m, 0.0),
+                velocity_mps: Vector2::new(self.tasks.profile().speed_at(phase_s), 0.0),
+            },
+            Phase::Place => PhaseGoal {
+                height_m: 0.0,
+                base_goal_m: start,
+                velocity_mps: Vector2::zeros(),
+            },
+        }
+    }
+
+    /// o⁽ⁱ⁾ for `goal`; false before a rest grasp was captured or when FK fails.
+    fn observe(&self, goal: &PhaseGoal, out: &mut [f64; ACTOR_OBS_DIM]) -> bool {
+        let Some(reference) = &self.reference else {
+            return false;
+        };
+        let peer = &self.sensed[self.peer_index()];
+        unit_observation(
+            &self.spec,
+            reference,
+            &self.sensed[self.unit],
+            peer,
+            goal,
+            out,
+        )
+        .is_ok()
+    }
+
+    /// The neighbour in the closed chain (the paper's j): the next unit, wrapping.
+    fn peer_index(&self) -> usize {
+        (self.unit + 1) % self.peers.len()
+    }
+
+    /// A newly committed phase starts its episode (goals from the odometry now). Entering Lift
+    /// starts a mission: the rest grasp is captured and the gripper is closed.
+    fn begin_phase(&mut self, phase: Phase, now_us: u64, own: &UnitState) {
+        self.episode = PhaseEpisode {
+            phase,
+            start_base: self.odometry,
+            start_us: now_us,
+        };
+        if phase == Phase::Lift {
+            let peer = self.sensed[self.peer_index()];
+            self.reference = GraspReference::capture(&self.spec, own, &peer).ok();
+            self.grasp_open = false;
+            self.resting_s = 0.0;
+        }
+    }
+
+    /// The hold reason and this unit's target F_k (`None` target: the policy failed).
+    fn target(
+        &mut self,
+        decision: &Decision,
+        now_us: u64,
+        own: &UnitState,
+        obs: &mut [f64; ACTOR_OBS_DIM],
+    ) -> (Option<HoldReason>, Option<UnitCommand>) {
+        let phase = match decision.directive {
+            Directive::Hold(reason) => return (Some(reason), Some(hold_command(own))),
+            Directive::Run(phase) => phase,
+        };
+        let goal = self.goal(now_us);
+        let (Some(policy), true) = (self.policies.get(phase), self.observe(&goal, obs)) else {
+            return (None, None);
+        };
+        let slot = match phase {
+            Phase::Lift => 0,
+            Phase::Transport => 1,
+            _ => 2,
+        };
+        let mut u = [0.0; UNIT_ACTION_DIM];
+        match policy.act(obs, &mut self.scratch[slot], &mut u) {
+            Ok(()) if u.iter().all(|v| v.is_finite()) => (None, Some(UnitCommand::from_action(&u))),
+            _ => (None, None),
+        }
+    }
+
+    fn update_release(&mut self, lift_estimate_m: f64) {
+        if lift_estimate_m <= self.gate.place.payload_height_max_m {
+            self.resting_s += self.period_s;
+        }
+        if self.resting_s >= self.tasks.place.release_after_contact_s {
+            self.grasp_open = true;
+        }
+    }
+
+    fn fill_message(&mut self, now_us: u64, phase: Phase, own: UnitState, issued: UnitCommand) {
+        self.seq = self.seq.max(now_us).saturating_add(1);
+        self.message.seq = self.seq;
+        self.message.stamp_us = now_us;
+        self.message.body = Body::Unit(UnitTick {
+            phase,
+            state: own,
+            command: issued,
+            announce: self.last_announce,
+        });
+    }
+}
+
+fn reading_is_finite(r: &UnitReading) -> bool {
+    let wheels = &r.wheels;
+    let arm = &r.arm;
+    wheels
+        .position_rad
+        .iter()
+        .chain(&wheels.velocity_radps)
+        .chain(&arm.position_rad)
+        .chain(&arm.velocity_radps)
+        .all(|v| v.is_finite())
+        && r.grasp_force_n.is_none_or(f64::is_finite)
+}
+
+impl TickRecord {
+    /// An empty record for a team of `team_size`, reused every tick.
+    pub fn for_team(team_size: usize) -> Self {
+        TickRecord {
+            unit: 0,
+            tick: 0,
+            stamp_us: 0,
+            phase: Phase::Idle,
+            hold: None,
+            t_max: 0.0,
+            distance: None,
+            sensed: UnitState::default(),
+            grasp_force_n: None,
+            grasp_open: false,
+            target: UnitCommand::default(),
+            issued: UnitCommand::default(),
+            peer_age_us: Vec::with_capacity(team_size),
+            fault: None,
+            rejected: RejectCounts::default(),
+            deadline_misses: 0,
+            work_us: 0,
+        }
+    }
+}

@@ -1,0 +1,1022 @@
+//! `moonhaul log summary DIR`: the paper's hardware metrics ("Evaluation on Hardware") from the
+//! ground truth of a mission directory, per trial and as mean ± 1σ per payload beside the
+//! paper's figures, and the full-mission height profile.
+//!
+//! A mission directory (`moonhaul mission sim --out DIR`) holds `DIR/<payload>/trial-<k>/`
+//! with `world.mcap` (the world's ground truth, like the paper's OptiTrack) and one
+//! `unit-<i>.mcap` per unit. Only `world.mcap` is read: the metrics are what an external
+//! tracker measures, and the phase is the one the units reported to the world with their
+//! commands (unit 0's, or any unit's when unit 0 sent none that step, or the last known).
+//!
+//! # The metrics, and the choices the paper leaves open
+//!
+//! Times are from the trial's first Lift frame; heights are of the payload's underside above
+//! the ground beneath it.
+//!
+//! - **Steady transport height**: the mean height over the transport phase without its first
+//!   [`STEADY_SKIP_FRACTION`] (25 %). The paper does not define its window; its hardware lift
+//!   took 20–30 s to converge, so the start of transport may still be settling.
+//! - **Time to 95 %**: from the first Lift frame until the height first reaches
+//!   [`RISE_FRACTION`] (0.95) × the steady height.
+//! - **Final settled height**: the mean height over the last [`SETTLE_WINDOW_S`] (1 s) of the
+//!   trial, after the phase returned to Idle following Place (only the part after Idle if that
+//!   is shorter); if the mission never got there, the last second of the trial, flagged.
+//! - **Phase durations** of Lift, Transport and Place, each from its first frame to the first
+//!   frame of another phase (or the end of the log).
+//! - **Completed**: the phases went Lift → Transport → Place → Idle in order; otherwise the
+//!   reason (held in a phase until the log ended, or stopped to Idle in the middle).
+//!
+//! Per payload: mean ± sample standard deviation (n − 1; 0 for a single trial) over the trials
+//! that have the metric. Outputs `DIR/summary.json` (the `--json` output) and
+//! `DIR/mission_profile.png`, published together.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use moonhaul_core::state::Phase;
+use moonhaul_deploy::mission_log::read_world_log;
+use moonhaul_deploy::record::WorldFrame;
+use plotters::prelude::*;
+use serde::Serialize;
+
+/// Fraction of the transport phase left out, at its start, of the steady-height mean.
+pub const STEADY_SKIP_FRACTION: f64 = 0.25;
+/// Fraction of the steady height whose first crossing ends the rise time.
+pub const RISE_FRACTION: f64 = 0.95;
+/// Length of the final-settled-height window, s.
+pub const SETTLE_WINDOW_S: f64 = 1.0;
+/// The reference height of the paper's hardware mission profile (its dashed line), m.
+pub const REFERENCE_HEIGHT_M: f64 = 0.30;
+/// Step of the common time grid the profile figure averages trials on, s.
+const GRID_STEP_S: f64 = 0.1;
+
+#[derive(clap::Subcommand)]
+pub enum LogCommand {
+    /// The paper's hardware metrics (steady transport height, time to 95 %, final settled
+    /// height, phase durations, completion) of every trial in a mission directory, and mean ±
+    /// 1σ per payload beside the paper's figures; writes DIR/summary.json and
+    /// DIR/mission_profile.png.
+    Summary {
+        /// A mission directory: DIR/<payload>/trial-<k>/world.mcap (`moonhaul mission sim
+        /// --out DIR`).
+        dir: PathBuf,
+        /// Print the summary as JSON (what summary.json holds) instead of tables.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+pub fn run(cmd: LogCommand) -> Result<()> {
+    match cmd {
+        LogCommand::Summary { dir, json } => summarize(&dir, json),
+    }
+}
+
+/// Summarizes the mission directory `dir`: prints tables (or the JSON with `json`) and writes
+/// `dir/summary.json` and `dir/mission_profile.png`.
+pub fn summarize(dir: &Path, json: bool) -> Result<()> {
+    let trials = find_trials(dir)?;
+    let mut metrics = Vec::with_capacity(trials.len());
+    let mut profiles: BTreeMap<String, Vec<Profile>> = BTreeMap::new();
+    for trial in &trials {
+        let frames = read_world_log(&trial.log)?;
+        let samples = samples(&frames).with_context(|| trial.log.display().to_string())?;
+        let m = trial_metrics(&samples)
+            .with_context(|| format!("{}: cannot summarize", trial.log.display()))?;
+        profiles
+            .entry(trial.payload.clone())
+            .or_default()
+            .push(Profile::new(&samples, &m));
+        metrics.push(TrialSummary {
+            payload: trial.payload.clone(),
+            trial: trial.trial,
+            log: trial.log.display().to_string(),
+            metrics: m,
+        });
+    }
+    let summary = Summary::new(dir, metrics);
+    let text = serde_json::to_string_pretty(&summary).context("encoding the summary")?;
+    write_outputs(dir, &text, &summary, &profiles)?;
+    if json {
+        outln!("{text}")?;
+    } else {
+        outln!("{}", summary.table())?;
+        outln!(
+            "wrote {} and {}",
+            dir.join("summary.json").display(),
+            dir.join("mission_profile.png").display()
+        )?;
+    }
+    Ok(())
+}
+
+/// One trial's world log.
+struct TrialDir {
+    payload: String,
+    trial: u32,
+    log: PathBuf,
+}
+
+/// The trials of `dir` in payload order (sledge, box, bricks as in the paper, then others by
+/// name) and trial number. Folders starting with `.` are skipped; every other folder is a
+/// payload and must hold `trial-<k>` folders, each with its `world.mcap`.
+fn find_trials(dir: &Path) -> Result<Vec<TrialDir>> {
+    let subdirs = |path: &Path| -> Result<Vec<(String, PathBuf)>> {
+        let mut out = Vec::new();
+        let entries = std::fs::read_dir(path)
+            .with_context(|| format!("cannot read the mission directory {}", path.display()))?;
+        for entry in entries {
+            let entry = entry.with_context(|| format!("cannot read {}", path.display()))?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let is_dir = entry
+                .file_type()
+                .with_context(|| format!("cannot read {}", entry.path().display()))?
+                .is_dir();
+            if is_dir && !name.starts_with('.') {
+                out.push((name, entry.path()));
+            }
+        }
+        Ok(out)
+    };
+    let mut payloads = subdirs(dir)?;
+    payloads.sort_by_key(|(name, _)| (paper_rank(name), name.clone()));
+    let mut trials = Vec::new();
+    for (payload, path) in payloads {
+        let mut found: Vec<(u32, PathBuf)> = subdirs(&path)?
+            .into_iter()
+            .filter_map(|(name, p)| {
+                let k = name.strip_prefix("trial-")?.parse().ok()?;
+                Some((k, p))
+            })
+            .collect();
+        if found.is_empty() {
+            bail!(
+                "{} has no trial-<k> folders (a mission directory holds <payload>/trial-<k>/world.mcap)",
+                path.display()
+            );
+        }
+        found.sort();
+        for (trial, trial_dir) in found {
+            let log = trial_dir.join("world.mcap");
+            if !log.exists() {
+                bail!(
+                    "{} is missing (the trial's ground-truth log)",
+                    log.display()
+                );
+            }
+            trials.push(TrialDir {
+                payload: payload.clone(),
+                trial,
+                log,
+            });
+        }
+    }
+    if trials.is_empty() {
+        bail!(
+            "{} holds no trials (expected <payload>/trial-<k>/world.mcap)",
+            dir.display()
+        );
+    }
+    Ok(trials)
+}
+
+/// The paper's hardware figures for one payload: mean and 1σ over its three trials.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct PaperFigures {
+    pub mass_kg: f64,
+    pub steady_height_mm: [f64; 2],
+    pub time_to_95_s: [f64; 2],
+    pub settled_height_mm: [f64; 2],
+}
+
+/// The paper's "Evaluation on Hardware" results, by our payload names.
+fn paper_figures(payload: &str) -> Option<PaperFigures> {
+    let figures = |mass_kg, steady, rise, settled| PaperFigures {
+        mass_kg,
+        steady_height_mm: steady,
+        time_to_95_s: rise,
+        settled_height_mm: settled,
+    };
+    match payload {
+        "sledge" => Some(figures(5.3, [272.6, 3.8], [21.02, 0.61], [8.1, 0.7])),
+        "box" => Some(figures(7.5, [243.0, 5.5], [30.42, 0.76], [8.0, 1.0])),
+        "bricks" => Some(figures(9.5, [209.1, 7.8], [31.18, 0.56], [12.1, 1.0])),
+        _ => None,
+    }
+}
+
+/// The paper's order of payloads (by mass); others after them.
+fn paper_rank(payload: &str) -> u8 {
+    match payload {
+        "sledge" => 0,
+        "box" => 1,
+        "bricks" => 2,
+        _ => 3,
+    }
+}
+
+/// One frame of a trial as the metrics see it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Sample {
+    /// Time since the log's first frame, s.
+    t_s: f64,
+    height_m: f64,
+    phase: Phase,
+}
+
+/// The samples of `frames`: time from the first frame, the reported phase (unit 0's, else any
+/// unit's, else the last one known; Idle before any), refusing an empty log, time running
+/// backwards or a non-finite height.
+fn samples(frames: &[WorldFrame]) -> Result<Vec<Sample>> {
+    let Some(first) = frames.first() else {
+        bail!("empty log: no ground-truth frames");
+    };
+    let mut phase = Phase::Idle;
+    let mut last_us = first.stamp_us;
+    let mut out = Vec::with_capacity(frames.len());
+    for f in frames {
+        if f.stamp_us < last_us {
+            bail!(
+                "frame of tick {} is stamped {} µs, before the previous frame ({last_us} µs)",
+                f.tick,
+                f.stamp_us
+            );
+        }
+        if !f.payload_height_m.is_finite() {
+            bail!("frame of tick {}: payload height is not finite", f.tick);
+        }
+        last_us = f.stamp_us;
+        let reported = f
+            .unit_phase
+            .first()
+            .copied()
+            .flatten()
+            .or_else(|| f.unit_phase.iter().find_map(|p| *p));
+        if let Some(p) = reported {
+            phase = p;
+        }
+        out.push(Sample {
+            t_s: (f.stamp_us - first.stamp_us) as f64 * 1e-6,
+            height_m: f.payload_height_m,
+            phase,
+        });
+    }
+    Ok(out)
+}
+
+/// When each phase of the mission began, on the log's clock (s).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PhaseStarts {
+    pub lift_s: f64,
+    pub transport_s: Option<f64>,
+    pub place_s: Option<f64>,
+    /// Back to Idle after Place: the mission completed.
+    pub idle_s: Option<f64>,
+}
+
+/// The metrics of one trial (the module docs define them).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrialMetrics {
+    /// Length of the log, s.
+    pub duration_s: f64,
+    pub phase_starts: PhaseStarts,
+    /// `None` when the mission never reached transport (or it was too short to average).
+    pub steady_height_mm: Option<f64>,
+    /// `None` without a steady height or when the height never reached 95 % of it.
+    pub time_to_95_s: Option<f64>,
+    pub settled_height_mm: f64,
+    /// False when the settled height is of the trial's last second because the mission never
+    /// returned to Idle after Place.
+    pub settled_after_idle: bool,
+    pub lift_s: f64,
+    pub transport_s: Option<f64>,
+    pub place_s: Option<f64>,
+    pub completed: bool,
+    /// Why the mission did not complete.
+    pub incomplete: Option<String>,
+}
+
+/// The trial metrics of `samples` (non-empty, time non-decreasing); an error if no unit ever
+/// reported Lift.
+fn trial_metrics(samples: &[Sample]) -> Result<TrialMetrics> {
+    let Some(lift_at) = samples.iter().position(|s| s.phase == Phase::Lift) else {
+        bail!("no unit ever reported the lift phase: the mission never started");
+    };
+    let end_s = samples.last().map_or(0.0, |s| s.t_s);
+    const ORDER: [Phase; 4] = [Phase::Lift, Phase::Transport, Phase::Place, Phase::Idle];
+    let mut starts = [Some(samples[lift_at].t_s), None, None, None];
+    let mut stage = 0;
+    // (the phase it was in, the phase it went to, when), if the order broke.
+    let mut broke: Option<(Phase, Phase, f64)> = None;
+    for s in &samples[lift_at..] {
+        if stage == ORDER.len() - 1 {
+            break;
+        }
+        if s.phase == ORDER[stage] {
+            continue;
+        }
+        if s.phase == ORDER[stage + 1] {
+            stage += 1;
+            starts[stage] = Some(s.t_s);
+        } else {
+            broke = Some((ORDER[stage], s.phase, s.t_s));
+            break;
+        }
+    }
+    // Each phase ends where the next began, where the order broke, or at the end of the log.
+    let span = |i: usize| -> Option<(f64, f64)> {
+        let start = starts[i]?;
+        let end = starts[i + 1].or(broke.map(|b| b.2)).unwrap_or(end_s);
+        Some((start, end))
+    };
+    let (lift_start, lift_end) = span(0).unwrap_or((samples[lift_at].t_s, end_s));
+    let transport = span(1);
+    let place = span(2);
+    let completed = starts[3].is_some();
+    let incomplete = if completed {
+        None
+    } else if let Some((from, to, at)) = broke {
+        Some(if to == Phase::Idle {
+            format!(
+                "stopped during {} at {at:.2} s (phase went to idle)",
+                from.name()
+            )
+        } else {
+            format!("left {} for {} at {at:.2} s", from.name(), to.name())
+        })
+    } else {
+        Some(format!(
+            "held in {} until the log ended at {end_s:.2} s",
+            ORDER[stage].name()
+        ))
+    };
+
+    let mean_height = |from_s: f64, to_s: f64, include_end: bool| -> Option<f64> {
+        let (sum, n) = samples
+            .iter()
+            .filter(|s| s.t_s >= from_s && (s.t_s < to_s || (include_end && s.t_s <= to_s)))
+            .fold((0.0, 0usize), |(sum, n), s| (sum + s.height_m, n + 1));
+        (n > 0).then(|| sum / n as f64)
+    };
+    let steady_m = transport.and_then(|(start, end)| {
+        let from = start + STEADY_SKIP_FRACTION * (end - start);
+        // A transport that ran to the end of the log includes the last frame.
+        mean_height(from, end, starts[2].is_none() && broke.is_none())
+    });
+    let time_to_95_s = steady_m.and_then(|steady| {
+        samples[lift_at..]
+            .iter()
+            .find(|s| s.height_m >= RISE_FRACTION * steady)
+            .map(|s| s.t_s - lift_start)
+    });
+    let settle_from = (end_s - SETTLE_WINDOW_S).max(starts[3].unwrap_or(f64::NEG_INFINITY));
+    let settled_m =
+        mean_height(settle_from, end_s, true).unwrap_or(samples[samples.len() - 1].height_m);
+    Ok(TrialMetrics {
+        duration_s: end_s,
+        phase_starts: PhaseStarts {
+            lift_s: lift_start,
+            transport_s: starts[1],
+            place_s: starts[2],
+            idle_s: starts[3],
+        },
+        steady_height_mm: steady_m.map(|h| h * 1e3),
+        time_to_95_s,
+        settled_height_mm: settled_m * 1e3,
+        settled_after_idle: completed,
+        lift_s: lift_end - lift_start,
+        transport_s: transport.map(|(s, e)| e - s),
+        place_s: place.map(|(s, e)| e - s),
+        completed,
+        incomplete,
+    })
+}
+
+/// Mean and sample standard deviation over `n` values.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Stat {
+    pub mean: f64,
+    /// Sample standard deviation (n − 1); 0 for one value.
+    pub std: f64,
+    pub n: usize,
+}
+
+impl Stat {
+    /// `None` for no values.
+    fn of(values: impl IntoIterator<Item = f64>) -> Option<Stat> {
+        let values: Vec<f64> = values.into_iter().collect();
+        let n = values.len();
+        if n == 0 {
+            return None;
+        }
+        let mean = values.iter().sum::<f64>() / n as f64;
+        let std = if n > 1 {
+            (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt()
+        } else {
+            0.0
+        };
+        Some(Stat { mean, std, n })
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct TrialSummary {
+    payload: String,
+    trial: u32,
+    log: String,
+    #[serde(flatten)]
+    metrics: TrialMetrics,
+}
+
+#[derive(Debug, Serialize)]
+struct PayloadSummary {
+    payload: String,
+    trials: usize,
+    completed: usize,
+    steady_height_mm: Option<Stat>,
+    time_to_95_s: Option<Stat>,
+    settled_height_mm: Option<Stat>,
+    lift_s: Option<Stat>,
+    transport_s: Option<Stat>,
+    place_s: Option<Stat>,
+    /// The paper's hardware figures for this payload, if it is one of the paper's.
+    paper: Option<PaperFigures>,
+}
+
+/// How the metrics were computed, recorded beside them.
+#[derive(Debug, Serialize)]
+struct Method {
+    steady_skip_fraction: f64,
+    rise_fraction: f64,
+    settle_window_s: f64,
+    reference_height_m: f64,
+    times_from: &'static str,
+    phase_source: &'static str,
+}
+
+#[derive(Debug, Serialize)]
+struct Summary {
+    dir: String,
+    method: Method,
+    trials: Vec<TrialSummary>,
+    payloads: Vec<PayloadSummary>,
+}
+
+impl Summary {
+    fn new(dir: &Path, trials: Vec<TrialSummary>) -> Self {
+        let mut names: Vec<&str> = Vec::new();
+        for t in &trials {
+            if !names.contains(&t.payload.as_str()) {
+                names.push(&t.payload);
+            }
+        }
+        let payloads = names
+            .iter()
+            .map(|name| {
+                let of = |f: fn(&TrialMetrics) -> Option<f64>| {
+                    Stat::of(
+                        trials
+                            .iter()
+                            .filter(|t| t.payload == *name)
+                            .filter_map(|t| f(&t.metrics)),
+                    )
+                };
+                let mine = trials.iter().filter(|t| t.payload == *name);
+                PayloadSummary {
+                    payload: (*name).to_owned(),
+                    trials: mine.clone().count(),
+                    completed: mine.filter(|t| t.metrics.completed).count(),
+                    steady_height_mm: of(|m| m.steady_height_mm),
+                    time_to_95_s: of(|m| m.time_to_95_s),
+                    settled_height_mm: of(|m| Some(m.settled_height_mm)),
+                    lift_s: of(|m| Some(m.lift_s)),
+                    transport_s: of(|m| m.transport_s),
+                    place_s: of(|m| m.place_s),
+                    paper: paper_figures(name),
+                }
+            })
+            .collect();
+        Summary {
+            dir: dir.display().to_string(),
+            method: Method {
+                steady_skip_fraction: STEADY_SKIP_FRACTION,
+                rise_fraction: RISE_FRACTION,
+                settle_window_s: SETTLE_WINDOW_S,
+                reference_height_m: REFERENCE_HEIGHT_M,
+                times_from: "durations and time to 95 % from the first lift frame; \
+                             phase_starts on the log's clock from its first frame",
+                phase_source: "unit 0's reported phase, else any unit's, else the last known",
+            },
+            trials,
+            payloads,
+        }
+    }
+
+    /// Per-trial rows, then per-payload mean ± 1σ beside the paper's hardware figures.
+    fn table(&self) -> String {
+        let opt =
+            |v: Option<f64>, digits: usize| v.map_or("—".to_owned(), |v| format!("{v:.digits$}"));
+        let stat = |s: &Option<Stat>, digits: usize| {
+            s.map_or("—".to_owned(), |s| {
+                format!("{:.digits$} ± {:.digits$}", s.mean, s.std)
+            })
+        };
+        let paper = |p: Option<[f64; 2]>, digits: usize| {
+            p.map_or("—".to_owned(), |[m, s]| {
+                format!("{m:.digits$} ± {s:.digits$}")
+            })
+        };
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "{:<22} {:>11} {:>9} {:>12} {:>8} {:>13} {:>9}  completed",
+            "trial",
+            "steady (mm)",
+            "t95 (s)",
+            "settled (mm)",
+            "lift (s)",
+            "transport (s)",
+            "place (s)"
+        );
+        for t in &self.trials {
+            let m = &t.metrics;
+            let settled = format!(
+                "{:.1}{}",
+                m.settled_height_mm,
+                if m.settled_after_idle { "" } else { "*" }
+            );
+            let _ = writeln!(
+                out,
+                "{:<22} {:>11} {:>9} {:>12} {:>8.2} {:>13} {:>9}  {}",
+                format!("{}/trial-{}", t.payload, t.trial),
+                opt(m.steady_height_mm, 1),
+                opt(m.time_to_95_s, 2),
+                settled,
+                m.lift_s,
+                opt(m.transport_s, 2),
+                opt(m.place_s, 2),
+                match &m.incomplete {
+                    None => "yes".to_owned(),
+                    Some(why) => format!("no: {why}"),
+                }
+            );
+        }
+        if self.trials.iter().any(|t| !t.metrics.settled_after_idle) {
+            let _ = writeln!(
+                out,
+                "* never returned to idle after place: the last {SETTLE_WINDOW_S} s of the trial"
+            );
+        }
+        let _ = writeln!(
+            out,
+            "\nmean ± 1σ per payload (sample std over trials), beside the paper's hardware results\n\
+             {:<14} {:>5} {:>17} {:>17} {:>15} {:>15} {:>15} {:>15} {:>14} {:>16} {:>14}",
+            "payload",
+            "n",
+            "steady (mm)",
+            "paper",
+            "t95 (s)",
+            "paper",
+            "settled (mm)",
+            "paper",
+            "lift (s)",
+            "transport (s)",
+            "place (s)"
+        );
+        for p in &self.payloads {
+            let figures = p.paper;
+            let name = match figures {
+                Some(f) => format!("{} {:.1} kg", p.payload, f.mass_kg),
+                None => p.payload.clone(),
+            };
+            let _ = writeln!(
+                out,
+                "{:<14} {:>5} {:>17} {:>17} {:>15} {:>15} {:>15} {:>15} {:>14} {:>16} {:>14}",
+                name,
+                format!("{}/{}", p.completed, p.trials),
+                stat(&p.steady_height_mm, 1),
+                paper(figures.map(|f| f.steady_height_mm), 1),
+                stat(&p.time_to_95_s, 2),
+                paper(figures.map(|f| f.time_to_95_s), 2),
+                stat(&p.settled_height_mm, 1),
+                paper(figures.map(|f| f.settled_height_mm), 1),
+                stat(&p.lift_s, 2),
+                stat(&p.transport_s, 2),
+                stat(&p.place_s, 2),
+            );
+        }
+        let _ = write!(
+            out,
+            "n: completed/trials. steady: mean over transport without its first {:.0} %; \
+             t95: first lift frame to {:.0} % of steady; settled: last {SETTLE_WINDOW_S} s after \
+             idle.",
+            STEADY_SKIP_FRACTION * 100.0,
+            RISE_FRACTION * 100.0
+        );
+        out
+    }
+}
+
+/// A trial's height over time since its first Lift frame, and its phase boundaries on that
+/// clock, for the profile figure.
+struct Profile {
+    /// (t since first lift s, height m), t ≥ 0.
+    points: Vec<(f64, f64)>,
+    transport_s: Option<f64>,
+    place_s: Option<f64>,
+    idle_s: Option<f64>,
+}
+
+impl Profile {
+    fn new(samples: &[Sample], m: &TrialMetrics) -> Self {
+        let t0 = m.phase_starts.lift_s;
+        Profile {
+            points: samples
+                .iter()
+                .filter(|s| s.t_s >= t0)
+                .map(|s| (s.t_s - t0, s.height_m))
+                .collect(),
+            transport_s: m.phase_starts.transport_s.map(|t| t - t0),
+            place_s: m.phase_starts.place_s.map(|t| t - t0),
+            idle_s: m.phase_starts.idle_s.map(|t| t - t0),
+        }
+    }
+
+    /// Height at `t_s` by linear interpolation; `None` outside the trial.
+    fn at(&self, t_s: f64) -> Option<f64> {
+        let i = self.points.partition_point(|p| p.0 < t_s);
+        let after = *self.points.get(i)?;
+        if after.0 == t_s || i == 0 {
+            return (after.0 == t_s).then_some(after.1);
+        }
+        let before = self.points[i - 1];
+        let w = (t_s - before.0) / (after.0 - before.0);
+        Some(before.1 + w * (after.1 - before.1))
+    }
+}
+
+/// The mean of `profiles` on a grid of [`GRID_STEP_S`] from the first Lift frame; where some
+/// trials have ended, the mean of those still running.
+fn mean_profile(profiles: &[Profile]) -> Vec<(f64, f64)> {
+    let end = profiles
+        .iter()
+        .filter_map(|p| p.points.last().map(|q| q.0))
+        .fold(0.0, f64::max);
+    let steps = (end / GRID_STEP_S).floor() as usize;
+    (0..=steps)
+        .filter_map(|k| {
+            let t = k as f64 * GRID_STEP_S;
+            let (sum, n) = profiles
+                .iter()
+                .filter_map(|p| p.at(t))
+                .fold((0.0, 0usize), |(s, n), h| (s + h, n + 1));
+            (n > 0).then(|| (t, sum / n as f64))
+        })
+        .collect()
+}
+
+/// Writes `summary.json` and `mission_profile.png` as one group: a reader never sees a new
+/// summary beside an old figure.
+fn write_outputs(
+    dir: &Path,
+    json: &str,
+    summary: &Summary,
+    profiles: &BTreeMap<String, Vec<Profile>>,
+) -> Result<()> {
+    let json_path = dir.join("summary.json");
+    let png_path = dir.join("mission_profile.png");
+    let cannot_write = |path: &Path| format!("cannot write {}", path.display());
+    let mut outputs = moonhaul_core::atomic_file::Group::new(|path: &Path, e: std::io::Error| {
+        anyhow::Error::new(e).context(cannot_write(path))
+    });
+    outputs.stage(&json_path, |temp| {
+        std::fs::write(temp, format!("{json}\n")).with_context(|| cannot_write(&json_path))
+    })?;
+    outputs.stage(&png_path, |temp| {
+        profile_figure(temp, summary, profiles).with_context(|| cannot_write(&png_path))
+    })?;
+    outputs.publish()
+}
+
+const COLORS: [RGBColor; 4] = [BLUE, RED, RGBColor(0, 140, 0), RGBColor(150, 0, 150)];
+
+/// The paper's full-mission figure: mean payload height per payload over mission time, the
+/// phases shaded from the mean phase boundaries over all trials, the 0.30 m reference dashed.
+fn profile_figure(
+    path: &Path,
+    summary: &Summary,
+    profiles: &BTreeMap<String, Vec<Profile>>,
+) -> Result<()> {
+    moonhaul_core::plot_font::register().map_err(anyhow::Error::msg)?;
+    let family = moonhaul_core::plot_font::FAMILY;
+    // Curves in the summary's payload order.
+    let curves: Vec<(&str, Vec<(f64, f64)>)> = summary
+        .payloads
+        .iter()
+        .filter_map(|p| {
+            let trials = profiles.get(&p.payload)?;
+            Some((p.payload.as_str(), mean_profile(trials)))
+        })
+        .collect();
+    let all: Vec<&Profile> = profiles.values().flatten().collect();
+    let mean_of =
+        |f: fn(&Profile) -> Option<f64>| Stat::of(all.iter().filter_map(|p| f(p))).map(|s| s.mean);
+    let x_max = curves
+        .iter()
+        .flat_map(|c| c.1.last().map(|p| p.0))
+        .fold(1.0, f64::max);
+    let y_max = curves
+        .iter()
+        .flat_map(|c| c.1.iter().map(|p| p.1))
+        .fold(REFERENCE_HEIGHT_M, f64::max)
+        * 1.15;
+    let y_min = curves
+        .iter()
+        .flat_map(|c| c.1.iter().map(|p| p.1))
+        .fold(0.0, f64::min);
+
+    let root = BitMapBackend::new(path, (1400, 700)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Full mission profile: mean payload height over trials",
+            (family, 24),
+        )
+        .margin(16)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..x_max, y_min..y_max)?;
+    chart
+        .configure_mesh()
+        .x_desc("mission time since lift start (s)")
+        .y_desc("payload height (m)")
+        .label_style((family, 15))
+        .axis_desc_style((family, 16))
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()?;
+
+    // Phase spans from the mean boundaries; each ends where the next begins, or at the end.
+    let transport = mean_of(|p| p.transport_s);
+    let place = mean_of(|p| p.place_s);
+    let idle = mean_of(|p| p.idle_s);
+    let spans = [
+        (
+            "lift",
+            Some(0.0),
+            transport.or(Some(x_max)),
+            RGBColor(255, 236, 204),
+        ),
+        (
+            "transport",
+            transport,
+            place.or(Some(x_max)),
+            RGBColor(214, 234, 248),
+        ),
+        (
+            "place",
+            place,
+            idle.or(Some(x_max)),
+            RGBColor(220, 240, 220),
+        ),
+    ];
+    for (name, start, end, color) in spans {
+        let (Some(start), Some(end)) = (start, end) else {
+            continue;
+        };
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(start, y_min), (end.min(x_max), y_max)],
+                // Translucent, so the grid shows through.
+                color.mix(0.75).filled(),
+            )))?
+            .label(format!("{name} (mean span)"))
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 18, y + 6)], color.filled()));
+    }
+    chart
+        .draw_series(DashedLineSeries::new(
+            [(0.0, REFERENCE_HEIGHT_M), (x_max, REFERENCE_HEIGHT_M)],
+            10,
+            6,
+            BLACK.stroke_width(2),
+        ))?
+        .label(format!("{REFERENCE_HEIGHT_M:.2} m reference"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+    for ((name, points), color) in curves.iter().zip(COLORS.iter().cycle()) {
+        let color = *color;
+        let n = profiles.get(*name).map_or(0, Vec::len);
+        let label = match paper_figures(name) {
+            Some(f) => format!("{name} {:.1} kg (mean of {n})", f.mass_kg),
+            None => format!("{name} (mean of {n})"),
+        };
+        chart
+            .draw_series(LineSeries::new(
+                points.iter().copied(),
+                color.stroke_width(2),
+            ))?
+            .label(label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        // Below the transport plateau, clear of the curves and the reference line.
+        .position(SeriesLabelPosition::LowerMiddle)
+        .label_font((family, 14))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Samples every 20 ms of `(until_s, phase)` segments, heights from `height(t)`.
+    fn trial(segments: &[(f64, Phase)], height: impl Fn(f64) -> f64) -> Vec<Sample> {
+        let end = segments.last().unwrap().0;
+        let n = (end / 0.02).round() as usize;
+        (0..=n)
+            .map(|k| {
+                let t = k as f64 * 0.02;
+                let phase = segments
+                    .iter()
+                    .find(|(until, _)| t < *until - 1e-9)
+                    .map_or(segments.last().unwrap().1, |s| s.1);
+                Sample {
+                    t_s: t,
+                    height_m: height(t),
+                    phase,
+                }
+            })
+            .collect()
+    }
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol
+    }
+
+    /// Idle 2 s, lift 2–32 s, transport 32–72 s, place 72–82 s, idle to 85 s.
+    const MISSION: [(f64, Phase); 5] = [
+        (2.0, Phase::Idle),
+        (32.0, Phase::Lift),
+        (72.0, Phase::Transport),
+        (82.0, Phase::Place),
+        (85.0, Phase::Idle),
+    ];
+
+    #[test]
+    fn steady_height_rise_time_and_settled_height_of_a_known_profile() {
+        // A linear ramp from 0 at lift start to 0.25 m at 27 s, flat (with a bump early in
+        // transport that the 25 % skip leaves out), then down to 8 mm.
+        let height = |t: f64| {
+            if t < 2.0 {
+                0.0
+            } else if t < 27.0 {
+                0.25 * (t - 2.0) / 25.0
+            } else if t < 72.0 {
+                if (32.0..40.0).contains(&t) {
+                    0.20
+                } else {
+                    0.25
+                }
+            } else if t < 80.0 {
+                0.25 - (0.25 - 0.008) * (t - 72.0) / 8.0
+            } else {
+                0.008
+            }
+        };
+        let m = trial_metrics(&trial(&MISSION, height)).unwrap();
+        assert!(m.completed && m.incomplete.is_none(), "{m:?}");
+        assert!(close(m.steady_height_mm.unwrap(), 250.0, 1e-9), "{m:?}");
+        // 0.95 × 0.25 m is reached 0.95 × 25 s = 23.75 s into the ramp (the 20 ms grid).
+        assert!(close(m.time_to_95_s.unwrap(), 23.76, 0.011), "{m:?}");
+        assert!(
+            close(m.settled_height_mm, 8.0, 1e-9) && m.settled_after_idle,
+            "{m:?}"
+        );
+        assert!(close(m.lift_s, 30.0, 1e-9), "{m:?}");
+        assert!(close(m.transport_s.unwrap(), 40.0, 1e-9), "{m:?}");
+        assert!(close(m.place_s.unwrap(), 10.0, 1e-9), "{m:?}");
+        assert_eq!(m.phase_starts.lift_s, 2.0);
+        assert!(close(m.phase_starts.idle_s.unwrap(), 82.0, 1e-9));
+    }
+
+    #[test]
+    fn steady_height_leaves_out_the_first_quarter_of_transport() {
+        // Transport 32–72 s: heights 0.1 m for the first 10 s, 0.3 m after.
+        let height = |t: f64| if t < 42.0 { 0.1 } else { 0.3 };
+        let m = trial_metrics(&trial(&MISSION, height)).unwrap();
+        assert!(close(m.steady_height_mm.unwrap(), 300.0, 1e-9), "{m:?}");
+    }
+
+    #[test]
+    fn a_mission_held_in_transport_is_not_completed() {
+        let segments = [
+            (1.0, Phase::Idle),
+            (20.0, Phase::Lift),
+            (60.0, Phase::Transport),
+        ];
+        let m = trial_metrics(&trial(&segments, |t| if t < 1.0 { 0.0 } else { 0.2 })).unwrap();
+        assert!(!m.completed, "{m:?}");
+        let why = m.incomplete.as_deref().unwrap();
+        assert!(why.contains("held in transport"), "{why}");
+        assert_eq!(m.place_s, None);
+        assert!(close(m.transport_s.unwrap(), 40.0, 1e-9), "{m:?}");
+        // The steady window runs to the log's last frame.
+        assert!(close(m.steady_height_mm.unwrap(), 200.0, 1e-9), "{m:?}");
+        // Settled height: the last second, flagged.
+        assert!(!m.settled_after_idle);
+        assert!(close(m.settled_height_mm, 200.0, 1e-9));
+    }
+
+    #[test]
+    fn a_stop_in_lift_is_reported_and_has_no_steady_height() {
+        let segments = [(1.0, Phase::Idle), (10.0, Phase::Lift), (20.0, Phase::Idle)];
+        let m = trial_metrics(&trial(&segments, |_| 0.05)).unwrap();
+        assert!(!m.completed);
+        let why = m.incomplete.as_deref().unwrap();
+        assert!(why.contains("stopped during lift at 10.00 s"), "{why}");
+        assert!(close(m.lift_s, 9.0, 1e-9), "{m:?}");
+        assert_eq!(
+            (m.steady_height_mm, m.time_to_95_s, m.transport_s),
+            (None, None, None)
+        );
+    }
+
+    #[test]
+    fn a_trial_without_lift_is_an_error() {
+        let samples = trial(&[(5.0, Phase::Idle)], |_| 0.0);
+        let e = trial_metrics(&samples).unwrap_err().to_string();
+        assert!(e.contains("no unit ever reported the lift phase"), "{e}");
+    }
+
+    fn frame(tick: u64, phases: Vec<Option<Phase>>) -> WorldFrame {
+        WorldFrame {
+            tick,
+            stamp_us: 1_000_000 + tick * 20_000,
+            payload_position_m: [0.0; 3],
+            payload_orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+            payload_height_m: 0.1,
+            payload_tilt_deg: 0.0,
+            payload_ground_contact: false,
+            base_position_m: vec![[0.0; 3]; 2],
+            base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
+            unit_phase: phases,
+            grasp_closed: vec![true; 2],
+        }
+    }
+
+    #[test]
+    fn phase_is_unit_0s_else_any_units_else_the_last_known() {
+        let frames = [
+            frame(0, vec![None, None]),
+            frame(1, vec![None, Some(Phase::Lift)]),
+            frame(2, vec![None, None]),
+            frame(3, vec![Some(Phase::Transport), Some(Phase::Lift)]),
+        ];
+        let s = samples(&frames).unwrap();
+        let phases: Vec<Phase> = s.iter().map(|s| s.phase).collect();
+        assert_eq!(
+            phases,
+            [Phase::Idle, Phase::Lift, Phase::Lift, Phase::Transport]
+        );
+        assert!(close(s[3].t_s, 0.06, 1e-12));
+        assert!(samples(&[]).unwrap_err().to_string().contains("empty log"));
+        let mut backwards = frames.to_vec();
+        backwards[2].stamp_us = 0;
+        assert!(samples(&backwards).is_err());
+    }
+
+    #[test]
+    fn stats_use_the_sample_deviation() {
+        let s = Stat::of([1.0, 2.0, 3.0]).unwrap();
+        assert!(close(s.mean, 2.0, 1e-12) && close(s.std, 1.0, 1e-12) && s.n == 3);
+        let one = Stat::of([4.0]).unwrap();
+        assert_eq!((one.mean, one.std), (4.0, 0.0));
+        assert_eq!(Stat::of([]), None);
+    }
+
+    #[test]
+    fn profiles_average_on_a_common_grid() {
+        let profile = |points: Vec<(f64, f64)>| Profile {
+            points,
+            transport_s: None,
+            place_s: None,
+            idle_s: None,
+        };
+        let a = profile(vec![(0.0, 0.0), (1.0, 1.0)]);
+        let b = profile(vec![(0.0, 1.0), (0.5, 1.0)]);
+        assert_eq!(a.at(0.25), Some(0.25));
+        assert_eq!(b.at(0.75), None);
+        let mean = mean_profile(&[a, b]);
+        assert_eq!(mean.len(), 11);
+        assert!(close(mean[2].1, (0.2 + 1.0) / 2.0, 1e-12), "{mean:?}");
+        // After b ends, only a.
+        assert!(close(mean[8].1, 0.8, 1e-12), "{mean:?}");
+    }
+}
