@@ -1,0 +1,366 @@
+//! Figures of the onboard runtime (`cargo bench -p moonhaul-deploy --bench onboard -- [--ticks N]
+//! [--pings N] [--trials N]`):
+//!
+//! - **tick latency**: one unit's work per tick — validate the peer's frame, the tick (gate,
+//!   observation, policy, clamp), seal its own frame, mock hardware read and write — on a team
+//!   flying its mission; excludes waiting for the period;
+//! - **peer round trip** on zenoh loopback: a sealed unit frame to a second session, validated
+//!   there and answered with its own sealed frame;
+//! - **halt latency**: two units ticking at 50 Hz on the wall clock over zenoh; at a random
+//!   moment one dies (stops ticking and publishing); the time from its last message to the
+//!   survivor's first held tick, over many trials.
+//!
+//! Percentiles are of the measured samples (nearest rank).
+
+use std::time::{Duration, Instant};
+
+use moonhaul_coord::auth::{KeyFile, Sealer};
+use moonhaul_coord::message::{Body, Envelope, OperatorCommand, Sender, PROTOCOL_VERSION};
+use moonhaul_coord::{GateConfig, HoldReason, SyncConfig, TeamSettings, Validator};
+use moonhaul_core::config::repo_file;
+use moonhaul_core::state::PlanarPose;
+use moonhaul_core::task_config::TaskConfig;
+use moonhaul_core::unit::UnitSpec;
+use moonhaul_deploy::daemon::load_policies;
+use moonhaul_deploy::network::{self, Keys, NetworkSettings};
+use moonhaul_deploy::record::TickRecord;
+use moonhaul_deploy::tick::{Onboard, OnboardSettings};
+use moonhaul_deploy::unit_config::UnitConfig;
+use moonhaul_hal::mock::MockConfig;
+use moonhaul_hal::unit::{MockUnit, UnitHardware, UnitReading};
+use rand::Rng;
+
+const PERIOD_US: u64 = 20_000;
+
+fn settings(unit: usize) -> TeamSettings {
+    TeamSettings {
+        team: "moonhaul".into(),
+        team_size: 2,
+        unit_index: unit,
+        control_period_us: PERIOD_US,
+        peer_staleness_periods: 3,
+    }
+}
+
+/// One unit: its tick, mock drives, validator and sealer.
+struct Unit {
+    onboard: Onboard,
+    hw: MockUnit,
+    validator: Validator,
+    sealer: Sealer,
+    record: TickRecord,
+    frame: Vec<u8>,
+}
+
+fn unit(i: usize, keys: &KeyFile, boot_us: u64) -> Unit {
+    let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
+    let config = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
+    let onboard = Onboard::new(
+        OnboardSettings {
+            spec: spec.clone(),
+            team: settings(i),
+            gate: GateConfig::shipped().unwrap(),
+            sync: SyncConfig::shipped().unwrap(),
+            tasks: TaskConfig::shipped().unwrap(),
+            start_pose: PlanarPose {
+                x_m: 0.0,
+                y_m: if i == 0 { -0.8 } else { 0.8 },
+                yaw_rad: if i == 0 { 0.0 } else { std::f64::consts::PI },
+            },
+        },
+        load_policies(&repo_file("assets/policies")).unwrap(),
+        boot_us,
+    )
+    .unwrap();
+    let period = Duration::from_micros(PERIOD_US);
+    let mut hw = MockUnit::new(
+        period,
+        MockConfig::ideal(period),
+        &spec,
+        &config.mock.arm_start_rad,
+        config.mock.grasp_load_n,
+    )
+    .unwrap();
+    hw.activate().unwrap();
+    Unit {
+        onboard,
+        hw,
+        validator: Validator::new(&settings(i), keys).unwrap(),
+        sealer: keys.sealer(Sender::Unit(i)).unwrap(),
+        record: TickRecord::for_team(2),
+        frame: Vec::with_capacity(1024),
+    }
+}
+
+impl Unit {
+    /// One tick on `inbox` frames at `now_us`; the unit's own frame is left in `self.frame`.
+    fn tick(&mut self, now_us: u64, inbox: &[&[u8]]) {
+        let mut reading = UnitReading::default();
+        let read = self.hw.read(&mut reading);
+        for frame in inbox {
+            if let Ok(e) = self.validator.receive_frame(frame, now_us) {
+                self.onboard.receive(&e);
+            }
+        }
+        let out = self.onboard.tick(
+            now_us,
+            read.is_ok().then_some(&reading),
+            self.validator.counts(),
+            &mut self.record,
+        );
+        let output = out.output;
+        let _ = self.sealer.seal_into(out.message, &mut self.frame);
+        let _ = self.hw.write(&output);
+    }
+}
+
+fn start_frame(keys: &KeyFile, now_us: u64) -> Vec<u8> {
+    keys.sealer(Sender::Operator)
+        .unwrap()
+        .seal(&Envelope {
+            version: PROTOCOL_VERSION,
+            team: "moonhaul".into(),
+            sender: Sender::Operator,
+            seq: now_us,
+            stamp_us: now_us,
+            body: Body::Operator(OperatorCommand::Start { mission: 1 }),
+        })
+        .unwrap()
+}
+
+fn percentiles(label: &str, unit: &str, samples: &mut [f64]) {
+    samples.sort_by(f64::total_cmp);
+    let at =
+        |q: f64| samples[((q * samples.len() as f64).ceil() as usize).clamp(1, samples.len()) - 1];
+    println!(
+        "{label}: n = {}, p50 {:.1} {unit}, p99 {:.1} {unit}, max {:.1} {unit}",
+        samples.len(),
+        at(0.5),
+        at(0.99),
+        samples[samples.len() - 1]
+    );
+}
+
+/// Tick latency of unit 0 over `ticks` ticks of a mission (both units tick, only unit 0's work
+/// is timed).
+fn tick_latency(ticks: usize) {
+    let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
+    let boot = 1_000_000_000;
+    let mut units = [unit(0, &keys, boot), unit(1, &keys, boot)];
+    let mut samples = Vec::with_capacity(ticks);
+    for k in 0..ticks as u64 {
+        let now = boot + (k + 1) * PERIOD_US;
+        let frames = [units[0].frame.clone(), units[1].frame.clone()];
+        let start = start_frame(&keys, now);
+        let mut inbox1: Vec<&[u8]> = vec![&frames[0]];
+        let mut inbox0: Vec<&[u8]> = vec![&frames[1]];
+        if k == 5 {
+            inbox0.push(&start);
+            inbox1.push(&start);
+        }
+        let t0 = Instant::now();
+        units[0].tick(now, &inbox0);
+        samples.push(t0.elapsed().as_secs_f64() * 1e6);
+        units[1].tick(now, &inbox1);
+    }
+    percentiles(
+        "tick latency (unit 0, mock drives, mission flying)",
+        "us",
+        &mut samples,
+    );
+}
+
+async fn peer_round_trip(pings: usize) {
+    let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
+    let port = network::free_loopback_port().unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let a = network::open(&NetworkSettings {
+        connect: vec![],
+        listen: vec![endpoint.clone()],
+    })
+    .await
+    .unwrap();
+    let b = network::open(&NetworkSettings {
+        connect: vec![endpoint],
+        listen: vec![],
+    })
+    .await
+    .unwrap();
+    let k = Keys::new("moonhaul");
+    let pub_a = network::control_publisher(&a, k.unit_state(0))
+        .await
+        .unwrap();
+    let pub_b = network::control_publisher(&b, k.unit_state(1))
+        .await
+        .unwrap();
+    let sub_a = a.declare_subscriber(k.unit_state(1)).await.unwrap();
+    let sub_b = b.declare_subscriber(k.unit_state(0)).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let boot = 1_000_000_000;
+    let mut u0 = unit(0, &keys, boot);
+    let mut u1 = unit(1, &keys, boot);
+    let mut samples = Vec::with_capacity(pings);
+    for k in 0..pings as u64 {
+        let now = boot + (k + 1) * PERIOD_US;
+        u0.tick(now, &[]);
+        let t0 = Instant::now();
+        network::put(&pub_a, &u0.frame).await.unwrap();
+        let got = sub_b
+            .recv_async()
+            .await
+            .unwrap()
+            .payload()
+            .to_bytes()
+            .into_owned();
+        u1.tick(now, &[&got]);
+        network::put(&pub_b, &u1.frame).await.unwrap();
+        let back = sub_a
+            .recv_async()
+            .await
+            .unwrap()
+            .payload()
+            .to_bytes()
+            .into_owned();
+        let _ = u0.validator.receive_frame(&back, now);
+        samples.push(t0.elapsed().as_secs_f64() * 1e6);
+    }
+    percentiles(
+        "peer round trip (zenoh TCP loopback, sealed + validated both ways, incl. one tick)",
+        "us",
+        &mut samples,
+    );
+    let _ = a.close().await;
+    let _ = b.close().await;
+}
+
+/// Wall-clock µs since the Unix epoch.
+fn wall_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_micros() as u64
+}
+
+async fn halt_latency(trials: usize) {
+    let mut samples = Vec::with_capacity(trials);
+    let mut rng = rand::rng();
+    for _ in 0..trials {
+        let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
+        let port = network::free_loopback_port().unwrap();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let s0 = network::open(&NetworkSettings {
+            connect: vec![],
+            listen: vec![endpoint.clone()],
+        })
+        .await
+        .unwrap();
+        let s1 = network::open(&NetworkSettings {
+            connect: vec![endpoint],
+            listen: vec![],
+        })
+        .await
+        .unwrap();
+        let k = Keys::new("moonhaul");
+        let pub0 = network::control_publisher(&s0, k.unit_state(0))
+            .await
+            .unwrap();
+        let pub1 = network::control_publisher(&s1, k.unit_state(1))
+            .await
+            .unwrap();
+        let sub0 = s0.declare_subscriber(k.unit_state(1)).await.unwrap();
+        let sub1 = s1.declare_subscriber(k.unit_state(0)).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let mut u1 = unit(1, &keys, wall_us());
+        let boot = wall_us();
+        let mut u0 = unit(0, &keys, boot);
+        // The operator's start, re-sent (newly stamped) for the first 0.3 s as the console does.
+        let start_for = Duration::from_millis(300);
+        // Unit 1 ticks on its own schedule, offset by a random part of a period, and dies
+        // (stops ticking and publishing) 0.5–1.0 s in.
+        let die_after = Duration::from_millis(rng.random_range(500..1000));
+        let offset = Duration::from_micros(rng.random_range(0..PERIOD_US));
+        let last_sent = std::sync::Arc::new(std::sync::Mutex::new(None::<Instant>));
+        let t_start = Instant::now();
+        let peer = {
+            let last_sent = last_sent.clone();
+            let keys = keys.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(offset).await;
+                let mut interval = tokio::time::interval(Duration::from_micros(PERIOD_US));
+                interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+                while t_start.elapsed() < die_after {
+                    interval.tick().await;
+                    let mut inbox = Vec::new();
+                    while let Ok(Some(s)) = sub1.try_recv() {
+                        inbox.push(s.payload().to_bytes().into_owned());
+                    }
+                    let now = wall_us();
+                    if t_start.elapsed() < start_for {
+                        inbox.push(start_frame(&keys, now));
+                    }
+                    let refs: Vec<&[u8]> = inbox.iter().map(|v| v.as_slice()).collect();
+                    u1.tick(now, &refs);
+                    network::put(&pub1, &u1.frame).await.unwrap();
+                    *last_sent.lock().unwrap() = Some(Instant::now());
+                }
+            })
+        };
+        let mut interval = tokio::time::interval(Duration::from_micros(PERIOD_US));
+        interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut started = false;
+        let latency = loop {
+            interval.tick().await;
+            let mut inbox = Vec::new();
+            while let Ok(Some(s)) = sub0.try_recv() {
+                inbox.push(s.payload().to_bytes().into_owned());
+            }
+            let now = wall_us();
+            if t_start.elapsed() < start_for {
+                inbox.push(start_frame(&keys, now));
+            }
+            let refs: Vec<&[u8]> = inbox.iter().map(|v| v.as_slice()).collect();
+            u0.tick(now, &refs);
+            network::put(&pub0, &u0.frame).await.unwrap();
+            let held = matches!(u0.record.hold, Some(HoldReason::SafetyStop(_)));
+            started |= !held && u0.record.phase != moonhaul_core::state::Phase::Idle;
+            if started && held && peer.is_finished() {
+                let last = last_sent.lock().unwrap().expect("the peer ran");
+                break last.elapsed();
+            }
+            assert!(t_start.elapsed() < Duration::from_secs(10), "never halted");
+        };
+        samples.push(latency.as_secs_f64() * 1e3);
+        let _ = s0.close().await;
+        let _ = s1.close().await;
+    }
+    percentiles(
+        "halt latency (peer's last message → survivor's first held tick, 50 Hz, bound 3 periods = 60 ms + one tick)",
+        "ms",
+        &mut samples,
+    );
+}
+
+fn arg(name: &str, default: usize) -> usize {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn main() {
+    let ticks = arg("--ticks", 3000);
+    let pings = arg("--pings", 1000);
+    let trials = arg("--trials", 100);
+    tick_latency(ticks);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        peer_round_trip(pings).await;
+        halt_latency(trials).await;
+    });
+}
