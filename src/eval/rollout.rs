@@ -3,8 +3,8 @@
 //! recorded action map, no exploration noise), and the scripted IK controller as a model-based
 //! baseline. Each episode becomes rows of [`EpisodeRow`].
 
-use anyhow::{bail, Context, Result};
-use moonhaul_core::observation::{check_layout, field_range, ACTOR_OBS_DIM};
+use anyhow::{Context, Result};
+use moonhaul_core::observation::{field_range, ACTOR_OBS_DIM};
 use moonhaul_core::policy::{Policy, PolicyScratch};
 use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
@@ -54,32 +54,7 @@ impl Case {
     }
 }
 
-/// Loads a phase policy and checks it is one a unit would run for `phase`: its phase, its
-/// observation layout and its sizes.
-pub fn load_policy(path: &std::path::Path, phase: Phase) -> Result<Policy> {
-    let policy =
-        Policy::from_file(path).with_context(|| format!("loading policy {}", path.display()))?;
-    let meta = policy.metadata();
-    if meta.phase != phase {
-        bail!(
-            "policy {} drives {}, not {}",
-            path.display(),
-            meta.phase,
-            phase
-        );
-    }
-    check_layout(&meta.extra).with_context(|| format!("policy {}", path.display()))?;
-    if meta.obs_dim != ACTOR_OBS_DIM || meta.action_dim != UNIT_ACTION_DIM {
-        bail!(
-            "policy {} maps {} observations to {} actions; a unit needs {ACTOR_OBS_DIM} → \
-             {UNIT_ACTION_DIM}",
-            path.display(),
-            meta.obs_dim,
-            meta.action_dim
-        );
-    }
-    Ok(policy)
-}
+pub use moonhaul_deploy::daemon::load_policy;
 
 /// The row of one control tick.
 fn row(task: &PhaseTask, episode: &Episode, state: &EnvState) -> EpisodeRow {

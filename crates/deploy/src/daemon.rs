@@ -17,9 +17,9 @@ use moonhaul_coord::auth::KeyFile;
 use moonhaul_coord::clamp::hold_command;
 use moonhaul_coord::message::{FaultKind, Sender};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
-use moonhaul_core::observation::check_layout;
+use moonhaul_core::observation::{check_layout, ACTOR_OBS_DIM};
 use moonhaul_core::policy::Policy;
-use moonhaul_core::state::{Phase, PlanarPose};
+use moonhaul_core::state::{Phase, PlanarPose, UNIT_ACTION_DIM};
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::can::UnitCanConfig;
@@ -150,7 +150,8 @@ pub struct DaemonArgs {
     pub max_runtime_s: Option<f64>,
 }
 
-/// Loads a phase policy and checks it is one a unit runs for `phase`.
+/// Loads a phase policy and checks it is one a unit runs for `phase`: its phase, its
+/// observation layout and its sizes.
 pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
     let policy =
         Policy::from_file(path).with_context(|| format!("loading policy {}", path.display()))?;
@@ -164,6 +165,15 @@ pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
         );
     }
     check_layout(&meta.extra).with_context(|| format!("policy {}", path.display()))?;
+    if meta.obs_dim != ACTOR_OBS_DIM || meta.action_dim != UNIT_ACTION_DIM {
+        bail!(
+            "policy {} maps {} observations to {} actions; a unit needs {ACTOR_OBS_DIM} → \
+             {UNIT_ACTION_DIM}",
+            path.display(),
+            meta.obs_dim,
+            meta.action_dim
+        );
+    }
     Ok(policy)
 }
 
