@@ -183,6 +183,10 @@ pub async fn run(args: SimArgs) -> Result<Vec<TrialRun>> {
             )
             .await
             .with_context(|| format!("{name} trial {trial} ({})", dir.display()))?;
+            eprintln!(
+                "mission sim: {name}, trial {trial} done in {:.1} s of wall time",
+                started.elapsed().as_secs_f64()
+            );
             runs.push(TrialRun {
                 payload: name,
                 trial,
