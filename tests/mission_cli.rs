@@ -10,10 +10,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use moonhaul_coord::clamp::hold_command;
+use moonhaul_coord::clamp::{hold_command, interpolate_command};
 use moonhaul_coord::message::{FaultKind, StopReason};
-use moonhaul_coord::HoldReason;
+use moonhaul_coord::{HoldReason, SyncConfig, UnitModel};
 use moonhaul_core::state::Phase;
+use moonhaul_core::unit::UnitSpec;
 use moonhaul_deploy::mission_log::{read_unit_log, read_world_log};
 use moonhaul_deploy::record::TickRecord;
 
@@ -149,9 +150,42 @@ fn await_status(keys: &Path, port: u16, timeout: Duration, done: impl Fn(&str) -
     }
 }
 
-/// Judges one unit's log: a hold is exactly the hold command; a step stays admissible.
+/// d(X, Y_k) of the paper's eq. (stacked_metric), computed here from the record's own clamp
+/// inputs (not by the clamp's code): every unit's commanded image — its sensed base integrated
+/// one period under the commanded wheel speeds, the arm's FK on it — against its sensed image.
+fn stacked_distance(r: &TickRecord, model: &UnitModel, sync: &SyncConfig) -> f64 {
+    let tol = &sync.tolerances;
+    let period_s = PERIOD_US as f64 * 1e-6;
+    let mut d: f64 = 0.0;
+    for (i, (sensed, previous)) in r.team_sensed.iter().zip(&r.team_previous).enumerate() {
+        let command = if i == r.unit { r.issued } else { *previous };
+        let base =
+            model
+                .spec()
+                .integrate_base(&sensed.base_pose, &command.wheel_velocity_radps, period_s);
+        let x = model
+            .arm_world_pose(&base, &command.arm_position_rad)
+            .unwrap();
+        let y = model
+            .arm_world_pose(&sensed.base_pose, &sensed.arm.position_rad)
+            .unwrap();
+        let dt = (x.translation.vector - y.translation.vector).norm();
+        let angle = x.rotation.angle_to(&y.rotation);
+        let arm = (dt / tol.arm_translation_m).max(angle / tol.arm_rotation_deg.to_radians());
+        let dx = (base.x_m - sensed.base_pose.x_m) / tol.base_xy_m[0];
+        let dy = (base.y_m - sensed.base_pose.y_m) / tol.base_xy_m[1];
+        d = d.max(arm).max(dx.hypot(dy));
+    }
+    d
+}
+
+/// Judges one unit's log: a hold is exactly the hold command; a step is the interpolation
+/// T(t_max) of the record's S_k and F_k and lies in V_k by an independent evaluation of d.
 fn check_commands(records: &[TickRecord]) {
     assert!(!records.is_empty());
+    let spec = UnitSpec::from_file(&moonhaul_core::config::repo_file("assets/unit.urdf")).unwrap();
+    let model = UnitModel::new(spec);
+    let sync = SyncConfig::shipped().unwrap();
     for r in records {
         assert!((0.0..=1.0).contains(&r.t_max), "{r:?}");
         match r.hold {
@@ -159,6 +193,22 @@ fn check_commands(records: &[TickRecord]) {
             None => {
                 let d = r.distance.expect("a step reports its distance");
                 assert!(d.value <= 1.0 + 1e-9, "tick {}: {d:?}", r.tick);
+                let s = r.team_previous[r.unit];
+                let expected = interpolate_command(&s, &r.target, r.t_max);
+                for (a, b) in expected.to_action().iter().zip(r.issued.to_action()) {
+                    assert!((a - b).abs() < 1e-9, "tick {}: not T(t_max)", r.tick);
+                }
+                let ours = stacked_distance(r, &model, &sync);
+                assert!(
+                    ours <= 1.0 + 1e-6,
+                    "tick {}: d = {ours} outside V_k",
+                    r.tick
+                );
+                assert!(
+                    (ours - d.value).abs() < 1e-6,
+                    "tick {}: {ours} vs {d:?}",
+                    r.tick
+                );
             }
         }
     }

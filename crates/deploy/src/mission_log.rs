@@ -762,6 +762,21 @@ fn tick_schema() -> serde_json::Value {
             "properties": { "position_rad": numbers(n), "velocity_radps": numbers(n) }
         })
     };
+    let state = json!({
+        "type": "object",
+        "properties": {
+            "wheels": joints(2),
+            "arm": joints(7),
+            "base_pose": {
+                "type": "object",
+                "properties": { "x_m": number, "y_m": number, "yaw_rad": number }
+            },
+            "base_velocity": {
+                "type": "object",
+                "properties": { "forward_mps": number, "yaw_rate_radps": number }
+            }
+        }
+    });
     // The reject counters follow the struct (coord adds reasons as the protocol grows).
     let counts: serde_json::Map<String, serde_json::Value> =
         match serde_json::to_value(RejectCounts::default()) {
@@ -792,21 +807,11 @@ fn tick_schema() -> serde_json::Value {
                     "binding": { "type": "object", "description": "{\"arm\": i} or {\"base\": i}" }
                 }
             },
-            "sensed": {
-                "type": "object",
-                "properties": {
-                    "wheels": joints(2),
-                    "arm": joints(7),
-                    "base_pose": {
-                        "type": "object",
-                        "properties": { "x_m": number, "y_m": number, "yaw_rad": number }
-                    },
-                    "base_velocity": {
-                        "type": "object",
-                        "properties": { "forward_mps": number, "yaw_rate_radps": number }
-                    }
-                }
-            },
+            "sensed": state,
+            "payload_height_estimate_m": { "type": ["number", "null"] },
+            "goal_distance_m": number,
+            "team_sensed": { "type": "array", "items": state.clone() },
+            "team_previous": { "type": "array", "items": command.clone() },
             "grasp_force_n": { "type": ["number", "null"] },
             "grasp_open": { "type": "boolean" },
             "target": command,
@@ -886,6 +891,10 @@ mod tests {
                 binding: Subsystem::Base(1),
             }),
             sensed,
+            payload_height_estimate_m: (tick > 10).then_some(0.01 * tick as f64),
+            goal_distance_m: 2.0,
+            team_sensed: vec![sensed, UnitState::default()],
+            team_previous: vec![issued, UnitCommand::default()],
             grasp_force_n: Some(12.5),
             grasp_open: false,
             target: issued,

@@ -34,6 +34,17 @@ pub struct TickRecord {
     pub distance: Option<StackedDistance>,
     /// This unit's state from its own encoders and odometry.
     pub sensed: UnitState,
+    /// The gate's payload-height estimate (mean FK lift of the cargo over the units), m;
+    /// `None` before the mission's rest grasp is captured.
+    pub payload_height_estimate_m: Option<f64>,
+    /// The gate's goal distance (this unit's odometry to its phase goal), m.
+    pub goal_distance_m: f64,
+    /// The clamp's inputs as this unit saw them, one entry per unit of the team: Y_k (the
+    /// sensed states: its own, and each peer's newest published one) and S_k = U_{k-1} (its own
+    /// last command, each peer's last published one, which is also that peer's F_k). With
+    /// `target` and `issued` they let anyone recheck that the issued command lies in V_k.
+    pub team_sensed: Vec<UnitState>,
+    pub team_previous: Vec<UnitCommand>,
     /// Grasp force estimate the gate used, N (`None`: the hardware has no such sensing).
     pub grasp_force_n: Option<f64>,
     /// Whether this unit's gripper is commanded open.

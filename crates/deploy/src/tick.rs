@@ -394,6 +394,12 @@ impl Onboard {
         record.t_max = report.map_or(0.0, |r| r.t_max);
         record.distance = report.and_then(|r| r.distance);
         record.sensed = own;
+        record.payload_height_estimate_m = lift_estimate_m.is_finite().then_some(lift_estimate_m);
+        record.goal_distance_m = goal_distance_m;
+        record.team_sensed.clear();
+        record.team_sensed.extend_from_slice(&self.sensed);
+        record.team_previous.clear();
+        record.team_previous.extend_from_slice(&self.previous_all);
         record.grasp_force_n = force_n;
         record.grasp_open = self.grasp_open;
         record.target = target;
@@ -575,6 +581,10 @@ impl TickRecord {
             t_max: 0.0,
             distance: None,
             sensed: UnitState::default(),
+            payload_height_estimate_m: None,
+            goal_distance_m: 0.0,
+            team_sensed: Vec::with_capacity(team_size),
+            team_previous: Vec::with_capacity(team_size),
             grasp_force_n: None,
             grasp_open: false,
             target: UnitCommand::default(),
