@@ -16,17 +16,14 @@ use std::time::{Duration, Instant};
 
 use moonhaul_coord::auth::{KeyFile, Sealer};
 use moonhaul_coord::message::{Body, Envelope, OperatorCommand, Sender, PROTOCOL_VERSION};
-use moonhaul_coord::{GateConfig, HoldReason, SyncConfig, TeamSettings, Validator};
+use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
 use moonhaul_core::state::PlanarPose;
-use moonhaul_core::task_config::TaskConfig;
-use moonhaul_core::unit::UnitSpec;
-use moonhaul_deploy::daemon::load_policies;
+use moonhaul_deploy::daemon::{load_policies, mock_hardware};
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::tick::{Onboard, OnboardSettings};
 use moonhaul_deploy::unit_config::UnitConfig;
-use moonhaul_hal::mock::MockConfig;
 use moonhaul_hal::unit::{MockUnit, UnitHardware, UnitReading};
 use rand::Rng;
 
@@ -53,35 +50,26 @@ struct Unit {
 }
 
 fn unit(i: usize, keys: &KeyFile, boot_us: u64) -> Unit {
-    let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
+    let start_pose = PlanarPose {
+        x_m: 0.0,
+        y_m: if i == 0 { -0.8 } else { 0.8 },
+        yaw_rad: if i == 0 { 0.0 } else { std::f64::consts::PI },
+    };
+    let onboard_settings = OnboardSettings::shipped(settings(i), start_pose).unwrap();
     let config = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
+    let mut hw = mock_hardware(
+        &config,
+        &onboard_settings.spec,
+        Duration::from_micros(PERIOD_US),
+    )
+    .unwrap();
+    hw.activate().unwrap();
     let onboard = Onboard::new(
-        OnboardSettings {
-            spec: spec.clone(),
-            team: settings(i),
-            gate: GateConfig::shipped().unwrap(),
-            sync: SyncConfig::shipped().unwrap(),
-            tasks: TaskConfig::shipped().unwrap(),
-            start_pose: PlanarPose {
-                x_m: 0.0,
-                y_m: if i == 0 { -0.8 } else { 0.8 },
-                yaw_rad: if i == 0 { 0.0 } else { std::f64::consts::PI },
-            },
-        },
+        onboard_settings,
         load_policies(&repo_file("assets/policies")).unwrap(),
         boot_us,
     )
     .unwrap();
-    let period = Duration::from_micros(PERIOD_US);
-    let mut hw = MockUnit::new(
-        period,
-        MockConfig::ideal(period),
-        &spec,
-        &config.mock.arm_start_rad,
-        config.mock.grasp_load_n,
-    )
-    .unwrap();
-    hw.activate().unwrap();
     Unit {
         onboard,
         hw,
@@ -89,6 +77,61 @@ fn unit(i: usize, keys: &KeyFile, boot_us: u64) -> Unit {
         sealer: keys.sealer(Sender::Unit(i)).unwrap(),
         record: TickRecord::for_team(2),
         frame: Vec::with_capacity(1024),
+    }
+}
+
+type Sub = zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+
+/// Two zenoh sessions on a loopback TCP link, each publishing one unit's state and
+/// subscribed to the other's.
+struct Link {
+    sessions: [zenoh::Session; 2],
+    publishers: [zenoh::pubsub::Publisher<'static>; 2],
+    subscribers: [Sub; 2],
+}
+
+impl Link {
+    async fn open() -> Link {
+        let port = network::free_loopback_port().unwrap();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let a = network::open(&NetworkSettings {
+            connect: vec![],
+            listen: vec![endpoint.clone()],
+        })
+        .await
+        .unwrap();
+        let b = network::open(&NetworkSettings {
+            connect: vec![endpoint],
+            listen: vec![],
+        })
+        .await
+        .unwrap();
+        let k = Keys::new("moonhaul");
+        let publishers = [
+            network::control_publisher(&a, k.unit_state(0))
+                .await
+                .unwrap(),
+            network::control_publisher(&b, k.unit_state(1))
+                .await
+                .unwrap(),
+        ];
+        let subscribers = [
+            a.declare_subscriber(k.unit_state(1)).await.unwrap(),
+            b.declare_subscriber(k.unit_state(0)).await.unwrap(),
+        ];
+        // Let the sessions connect and the subscriptions propagate.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        Link {
+            sessions: [a, b],
+            publishers,
+            subscribers,
+        }
+    }
+
+    async fn close(self) {
+        for s in self.sessions {
+            let _ = s.close().await;
+        }
     }
 }
 
@@ -172,30 +215,9 @@ fn tick_latency(ticks: usize) {
 
 async fn peer_round_trip(pings: usize) {
     let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
-    let port = network::free_loopback_port().unwrap();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let a = network::open(&NetworkSettings {
-        connect: vec![],
-        listen: vec![endpoint.clone()],
-    })
-    .await
-    .unwrap();
-    let b = network::open(&NetworkSettings {
-        connect: vec![endpoint],
-        listen: vec![],
-    })
-    .await
-    .unwrap();
-    let k = Keys::new("moonhaul");
-    let pub_a = network::control_publisher(&a, k.unit_state(0))
-        .await
-        .unwrap();
-    let pub_b = network::control_publisher(&b, k.unit_state(1))
-        .await
-        .unwrap();
-    let sub_a = a.declare_subscriber(k.unit_state(1)).await.unwrap();
-    let sub_b = b.declare_subscriber(k.unit_state(0)).await.unwrap();
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    let link = Link::open().await;
+    let [pub_a, pub_b] = &link.publishers;
+    let [sub_a, sub_b] = &link.subscribers;
     let boot = 1_000_000_000;
     let mut u0 = unit(0, &keys, boot);
     let mut u1 = unit(1, &keys, boot);
@@ -204,7 +226,7 @@ async fn peer_round_trip(pings: usize) {
         let now = boot + (k + 1) * PERIOD_US;
         u0.tick(now, &[]);
         let t0 = Instant::now();
-        network::put(&pub_a, &u0.frame).await.unwrap();
+        network::put(pub_a, &u0.frame).await.unwrap();
         let got = sub_b
             .recv_async()
             .await
@@ -213,7 +235,7 @@ async fn peer_round_trip(pings: usize) {
             .to_bytes()
             .into_owned();
         u1.tick(now, &[&got]);
-        network::put(&pub_b, &u1.frame).await.unwrap();
+        network::put(pub_b, &u1.frame).await.unwrap();
         let back = sub_a
             .recv_async()
             .await
@@ -229,8 +251,7 @@ async fn peer_round_trip(pings: usize) {
         "us",
         &mut samples,
     );
-    let _ = a.close().await;
-    let _ = b.close().await;
+    link.close().await;
 }
 
 /// Wall-clock µs since the Unix epoch.
@@ -246,30 +267,11 @@ async fn halt_latency(trials: usize) {
     let mut rng = rand::rng();
     for _ in 0..trials {
         let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
-        let port = network::free_loopback_port().unwrap();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
-        let s0 = network::open(&NetworkSettings {
-            connect: vec![],
-            listen: vec![endpoint.clone()],
-        })
-        .await
-        .unwrap();
-        let s1 = network::open(&NetworkSettings {
-            connect: vec![endpoint],
-            listen: vec![],
-        })
-        .await
-        .unwrap();
-        let k = Keys::new("moonhaul");
-        let pub0 = network::control_publisher(&s0, k.unit_state(0))
-            .await
-            .unwrap();
-        let pub1 = network::control_publisher(&s1, k.unit_state(1))
-            .await
-            .unwrap();
-        let sub0 = s0.declare_subscriber(k.unit_state(1)).await.unwrap();
-        let sub1 = s1.declare_subscriber(k.unit_state(0)).await.unwrap();
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        let Link {
+            sessions,
+            publishers: [pub0, pub1],
+            subscribers: [sub0, sub1],
+        } = Link::open().await;
         let mut u1 = unit(1, &keys, wall_us());
         let boot = wall_us();
         let mut u0 = unit(0, &keys, boot);
@@ -330,8 +332,9 @@ async fn halt_latency(trials: usize) {
             assert!(t_start.elapsed() < Duration::from_secs(10), "never halted");
         };
         samples.push(latency.as_secs_f64() * 1e3);
-        let _ = s0.close().await;
-        let _ = s1.close().await;
+        for s in sessions {
+            let _ = s.close().await;
+        }
     }
     percentiles(
         "halt latency (peer's last message → survivor's first held tick, 50 Hz, bound 3 periods = 60 ms + one tick)",

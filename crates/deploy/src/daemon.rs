@@ -187,6 +187,22 @@ pub fn load_policies(folder: &Path) -> Result<PhasePolicies> {
     })
 }
 
+/// The mock backend of a unit config (`[mock]`): mirror drives with the grasp's load share,
+/// activated by the caller.
+pub fn mock_hardware(
+    config: &UnitConfig,
+    spec: &UnitSpec,
+    period: Duration,
+) -> Result<MockUnit, moonhaul_hal::HalError> {
+    MockUnit::new(
+        period,
+        MockConfig::ideal(period),
+        spec,
+        &config.mock.arm_start_rad,
+        config.mock.grasp_load_n,
+    )
+}
+
 fn parse_pose(text: &str) -> Result<PlanarPose> {
     let v: Vec<f64> = text
         .split(',')
@@ -280,13 +296,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let policies = load_policies(&config.policies)?;
     let period = Duration::from_micros(settings.control_period_us);
     let mut hardware = match args.hal {
-        HalKind::Mock => Hardware::Mock(Box::new(MockUnit::new(
-            period,
-            MockConfig::ideal(period),
-            &spec,
-            &config.mock.arm_start_rad,
-            config.mock.grasp_load_n,
-        )?)),
+        HalKind::Mock => Hardware::Mock(Box::new(mock_hardware(&config, &spec, period)?)),
         HalKind::Can => {
             let can = UnitCanConfig::from_file(&config.can)?;
             Hardware::Can(Box::new(

@@ -84,6 +84,23 @@ pub struct OnboardSettings {
     pub start_pose: PlanarPose,
 }
 
+impl OnboardSettings {
+    /// This source tree's shipped settings (`assets/unit.urdf`, `configs/gate.toml`,
+    /// `configs/sync.toml`, `configs/tasks.toml`) for `team`, starting at `start_pose`: for
+    /// tests and benches run from a checkout.
+    pub fn shipped(team: TeamSettings, start_pose: PlanarPose) -> anyhow::Result<Self> {
+        let urdf = moonhaul_core::config::repo_file("assets/unit.urdf");
+        Ok(OnboardSettings {
+            spec: UnitSpec::from_file(&urdf)?,
+            team,
+            gate: GateConfig::shipped()?,
+            sync: SyncConfig::shipped()?,
+            tasks: TaskConfig::shipped()?,
+            start_pose,
+        })
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum OnboardError {
     #[error(transparent)]

@@ -12,15 +12,13 @@ use moonhaul_coord::clamp::hold_command;
 use moonhaul_coord::message::{
     Body, Envelope, OperatorCommand, Sender, StopReason, PROTOCOL_VERSION,
 };
-use moonhaul_coord::{GateConfig, HoldReason, SyncConfig, TeamSettings, Validator};
+use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
 use moonhaul_core::state::{Phase, PlanarPose};
-use moonhaul_core::task_config::TaskConfig;
-use moonhaul_core::unit::UnitSpec;
-use moonhaul_deploy::daemon::load_policies;
+use moonhaul_deploy::daemon::{load_policies, mock_hardware};
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::tick::{Onboard, OnboardSettings};
-use moonhaul_hal::mock::MockConfig;
+use moonhaul_deploy::unit_config::UnitConfig;
 use moonhaul_hal::unit::{FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitReading};
 
 const PERIOD_US: u64 = 20_000;
@@ -59,42 +57,32 @@ fn settings(unit: usize) -> TeamSettings {
     }
 }
 
+/// The formation's start: unit 0 facing +x at y = −0.8 m, unit 1 facing it at y = +0.8 m.
+fn start_pose(i: usize) -> PlanarPose {
+    PlanarPose {
+        x_m: 0.0,
+        y_m: if i == 0 { -0.8 } else { 0.8 },
+        yaw_rad: if i == 0 { 0.0 } else { std::f64::consts::PI },
+    }
+}
+
 impl Team {
     fn new() -> Team {
         let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
-        let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
-        let unit_toml =
-            moonhaul_deploy::unit_config::UnitConfig::from_file(&repo_file("configs/unit.toml"))
-                .unwrap();
+        let unit_toml = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
         let units = (0..2)
             .map(|i| {
+                let onboard_settings =
+                    OnboardSettings::shipped(settings(i), start_pose(i)).unwrap();
+                let period = Duration::from_micros(PERIOD_US);
+                let mut hw = mock_hardware(&unit_toml, &onboard_settings.spec, period).unwrap();
+                hw.activate().unwrap();
                 let onboard = Onboard::new(
-                    OnboardSettings {
-                        spec: spec.clone(),
-                        team: settings(i),
-                        gate: GateConfig::shipped().unwrap(),
-                        sync: SyncConfig::shipped().unwrap(),
-                        tasks: TaskConfig::shipped().unwrap(),
-                        start_pose: PlanarPose {
-                            x_m: 0.0,
-                            y_m: if i == 0 { -0.8 } else { 0.8 },
-                            yaw_rad: if i == 0 { 0.0 } else { std::f64::consts::PI },
-                        },
-                    },
+                    onboard_settings,
                     load_policies(&repo_file("assets/policies")).unwrap(),
                     BOOT_US,
                 )
                 .unwrap();
-                let period = Duration::from_micros(PERIOD_US);
-                let mut hw = MockUnit::new(
-                    period,
-                    MockConfig::ideal(period),
-                    &spec,
-                    &unit_toml.mock.arm_start_rad,
-                    unit_toml.mock.grasp_load_n,
-                )
-                .unwrap();
-                hw.activate().unwrap();
                 Unit {
                     onboard,
                     hw,
