@@ -900,7 +900,7 @@ mod tests {
             target: issued,
             issued,
             peer_age_us: vec![None, Some(20_000)],
-            fault: (tick == 7).then(|| "drive 3: following error".to_owned()),
+            fault: (tick == 7).then(|| "drive 3: following error".into()),
             rejected: RejectCounts {
                 stale: tick / 5,
                 ..Default::default()

@@ -56,8 +56,9 @@ pub struct TickRecord {
     /// Per unit of the team: age of its newest accepted state at this tick, µs (`None`: never
     /// heard, or this unit itself).
     pub peer_age_us: Vec<Option<u64>>,
-    /// This unit's own fault this tick, as text (drive, sensor, policy).
-    pub fault: Option<String>,
+    /// This unit's own latched fault, as text (drive, sensor, policy); borrowed while
+    /// recording so a faulted tick does not allocate either.
+    pub fault: Option<std::borrow::Cow<'static, str>>,
     /// Messages rejected since start, by reason.
     pub rejected: RejectCounts,
     /// Ticks since start whose work overran the control period.

@@ -273,6 +273,11 @@ impl Onboard {
         self.team.phase()
     }
 
+    /// The message of the last tick (what [`TickOutput::message`] returned).
+    pub fn last_message(&self) -> &Envelope {
+        &self.message
+    }
+
     /// Whether every peer's newest accepted state is stamped at or after `stamp_us`.
     pub fn peers_heard_since(&self, stamp_us: u64) -> bool {
         self.peers
@@ -429,10 +434,7 @@ impl Onboard {
                 .map(|t| now_us.saturating_sub(t));
             record.peer_age_us.push(age);
         }
-        record.fault = None;
-        if let Some((_, what)) = self.latched_fault {
-            record.fault = Some(what.to_owned());
-        }
+        record.fault = self.latched_fault.map(|(_, what)| what.into());
         record.rejected = *rejected;
         TickOutput {
             output: UnitOutput {
