@@ -5,8 +5,9 @@
 //! (a late tick is counted as a deadline miss and the schedule skips ahead, never bursts); the
 //! clock is the system's (team-synchronized, e.g. PTP). With `--hal sim` it ticks on each of the
 //! simulated world's readings and the clock is the world's simulated time; in lockstep it also
-//! waits (bounded) for its peers' messages of the previous tick, so a simulated mission is
-//! deterministic. SIGINT or SIGTERM ends in a hold: the hold command is written, the drives are
+//! waits (bounded) for its peers' messages of the previous tick and holds back any of the
+//! current one, so the units' exchange does not depend on process scheduling. (The tick the
+//! operator's start arrives on still does: trials of one seed differ from the start on.) SIGINT or SIGTERM ends in a hold: the hold command is written, the drives are
 //! deactivated and the log is finished before the process exits.
 
 use std::path::{Path, PathBuf};
@@ -287,7 +288,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     keys.check_matches(&settings)
         .with_context(|| format!("key file {}", args.keys.display()))?;
     let sealer = keys.sealer(Sender::Unit(unit))?;
-    let mut validator = Validator::new(&settings, &keys)?;
+    let validator = Validator::new(&settings, &keys)?;
     let spec = UnitSpec::from_file(&config.urdf)
         .with_context(|| format!("unit model {}", config.urdf.display()))?;
     let gate = GateConfig::from_file(&config.gate)?;
@@ -370,6 +371,11 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let mut deadline_misses = 0u64;
     let mut last_rejections = 0u64;
     let lockstep = args.hal == HalKind::Sim && !args.realtime;
+    let mut inbox = Inbox {
+        validator,
+        lockstep,
+        deferred: Vec::new(),
+    };
     let stop_reason: &str = loop {
         // Wait for the tick: the interval, or the world's next reading.
         let wake = tokio::select! {
@@ -408,11 +414,12 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             }
         }
         let own_key = keyx.unit_state(unit);
+        inbox.release(&mut onboard, now_us);
         if lockstep {
             wait_for_peers(
                 &peers,
                 &own_key,
-                &mut validator,
+                &mut inbox,
                 &mut onboard,
                 now_us,
                 settings.control_period_us,
@@ -433,19 +440,12 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         drain(
             &peers,
             &own_key,
-            &mut validator,
+            &mut inbox,
             &mut onboard,
             now_us,
             drop_peers,
         );
-        drain(
-            &operator,
-            &own_key,
-            &mut validator,
-            &mut onboard,
-            now_us,
-            false,
-        );
+        drain(&operator, &own_key, &mut inbox, &mut onboard, now_us, false);
         if policy_nan {
             onboard.latch_fault(FaultKind::Policy, "non-finite policy output (injected)");
         }
@@ -453,7 +453,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         let out = onboard.tick(
             now_us,
             read.is_ok().then_some(&reading),
-            validator.counts(),
+            inbox.validator.counts(),
             &mut record,
         );
         let output = out.output;
@@ -483,9 +483,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         if record.phase != before {
             info!(unit, from = %before, to = %record.phase, t_s = elapsed_s, "phase");
         }
-        let rejected = validator.counts().total();
+        let rejected = inbox.validator.counts().total();
         if rejected > last_rejections {
-            warn!(unit, total = rejected, counts = ?validator.counts(), "messages rejected");
+            warn!(unit, total = rejected, counts = ?inbox.validator.counts(), "messages rejected");
             last_rejections = rejected;
         }
         let work = work_start.elapsed();
@@ -589,14 +589,14 @@ type Subscriber =
 fn drain(
     sub: &Subscriber,
     own_key: &str,
-    validator: &mut Validator,
+    inbox: &mut Inbox,
     onboard: &mut Onboard,
     now_us: u64,
     drop: bool,
 ) {
     while let Ok(Some(sample)) = sub.try_recv() {
         if !drop {
-            take(&sample, own_key, validator, onboard, now_us);
+            take(&sample, own_key, inbox, onboard, now_us);
         }
     }
 }
@@ -604,7 +604,7 @@ fn drain(
 fn take(
     sample: &zenoh::sample::Sample,
     own_key: &str,
-    validator: &mut Validator,
+    inbox: &mut Inbox,
     onboard: &mut Onboard,
     now_us: u64,
 ) {
@@ -612,9 +612,40 @@ fn take(
         return;
     }
     let bytes = sample.payload().to_bytes();
-    match validator.receive_frame(&bytes, now_us) {
+    match inbox.validator.receive_frame(&bytes, now_us) {
+        // Lockstep: a peer's message of this very tick waits for the next one, so what a unit
+        // sees never depends on which process the scheduler ran first (operator commands act
+        // at once).
+        Ok(envelope)
+            if inbox.lockstep
+                && matches!(envelope.sender, Sender::Unit(_))
+                && envelope.stamp_us >= now_us =>
+        {
+            inbox.deferred.push(envelope)
+        }
         Ok(envelope) => onboard.receive(&envelope),
         Err(rejection) => tracing::debug!(unit = onboard.unit(), %rejection, "rejected"),
+    }
+}
+
+/// The receiving side of the daemon: the validator, and in lockstep the peers' messages held
+/// for the next tick.
+struct Inbox {
+    validator: Validator,
+    lockstep: bool,
+    deferred: Vec<moonhaul_coord::message::Envelope>,
+}
+
+impl Inbox {
+    /// Takes in the held messages older than `now_us`.
+    fn release(&mut self, onboard: &mut Onboard, now_us: u64) {
+        self.deferred.retain(|e| {
+            let due = e.stamp_us < now_us;
+            if due {
+                onboard.receive(e);
+            }
+            !due
+        });
     }
 }
 
@@ -624,7 +655,7 @@ fn take(
 async fn wait_for_peers(
     sub: &Subscriber,
     own_key: &str,
-    validator: &mut Validator,
+    inbox: &mut Inbox,
     onboard: &mut Onboard,
     now_us: u64,
     period_us: u64,
@@ -637,6 +668,6 @@ async fn wait_for_peers(
         let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await else {
             return;
         };
-        take(&sample, own_key, validator, onboard, now_us);
+        take(&sample, own_key, inbox, onboard, now_us);
     }
 }

@@ -4,7 +4,8 @@
 //! Each world step the world publishes every unit's [`SimSensed`] (encoders with the training
 //! noise, and the wrist-force estimate); the unit ticks on it and answers with one
 //! [`SimCommand`] for the same tick. In lockstep the world steps once every live unit answered,
-//! so a mission is deterministic and runs as fast as the machine allows; in real time it steps
+//! so the physics never waits on the wall clock and runs as fast as the machine allows (every
+//! step sees every unit's command of that tick, whatever the scheduling); in real time it steps
 //! on the wall clock with whatever command is newest. The world treats a unit that stops
 //! answering as a drive that lost its master: quick stop (wheels to zero, arm holding).
 //!
