@@ -649,7 +649,7 @@ impl Inbox {
     }
 }
 
-/// Lockstep only: waits (at most a few hundred ms of wall time) until every peer's message of
+/// Lockstep only: waits (at most a second of wall time) until every peer's message of
 /// the previous tick is in, taking them in as they come; a silent peer is then judged by the
 /// staleness rule on message stamps, like any other.
 async fn wait_for_peers(
@@ -661,7 +661,9 @@ async fn wait_for_peers(
     period_us: u64,
     drop: bool,
 ) {
-    const PEER_WAIT: Duration = Duration::from_millis(300);
+    // Long enough for a loaded machine to deliver a live peer's message (waiting costs nothing
+    // then); a dead peer makes each of the few ticks before its staleness stop wait this long.
+    const PEER_WAIT: Duration = Duration::from_secs(1);
     let wanted = now_us.saturating_sub(period_us);
     let deadline = tokio::time::Instant::now() + PEER_WAIT;
     while !drop && !onboard.peers_heard_since(wanted) {
