@@ -89,11 +89,13 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
             .entry(trial.payload.clone())
             .or_default()
             .push(Profile::new(&samples, &m));
+        let folder = trial.log.parent().unwrap_or(Path::new("."));
         metrics.push(TrialSummary {
             payload: trial.payload.clone(),
             trial: trial.trial,
             log: trial.log.display().to_string(),
             metrics: m,
+            clamp: ClampStats::of_trial(folder)?,
         });
     }
     let summary = Summary::new(dir, metrics);
@@ -428,6 +430,57 @@ struct TrialSummary {
     log: String,
     #[serde(flatten)]
     metrics: TrialMetrics,
+    /// What the synchronization clamp did, from the units' logs (`unit-<i>.mcap` beside the
+    /// world log); `None` when the trial folder has none.
+    clamp: Option<ClampStats>,
+}
+
+/// The clamp over one trial's ticks that ran a phase policy (every unit pooled).
+#[derive(Debug, Clone, Copy, Serialize)]
+struct ClampStats {
+    /// Ticks whose committed phase had a policy and no hold was requested.
+    policy_ticks: u64,
+    /// Mean t_max over them.
+    mean_t_max: f64,
+    /// Fraction issued less than the full step (t_max < 1).
+    clamped_fraction: f64,
+    /// Fraction where no step was admissible (the hold of eq. t_max's empty set).
+    held_fraction: f64,
+}
+
+impl ClampStats {
+    /// From the unit logs in `folder`; unreadable logs are reported, missing ones give `None`.
+    fn of_trial(folder: &Path) -> Result<Option<ClampStats>> {
+        use moonhaul_coord::HoldReason;
+        let (mut n, mut t_sum, mut clamped, mut held) = (0u64, 0.0, 0u64, 0u64);
+        let mut any = false;
+        for i in 0.. {
+            let path = folder.join(format!("unit-{i}.mcap"));
+            if !path.exists() {
+                break;
+            }
+            any = true;
+            for r in moonhaul_deploy::mission_log::read_unit_log(&path)? {
+                let running = r.phase.has_policy()
+                    && matches!(r.hold, None | Some(HoldReason::NoAdmissibleStep));
+                if running {
+                    n += 1;
+                    t_sum += r.t_max;
+                    clamped += u64::from(r.t_max < 1.0);
+                    held += u64::from(r.hold == Some(HoldReason::NoAdmissibleStep));
+                }
+            }
+        }
+        Ok(any.then(|| {
+            let per = |k: u64| if n > 0 { k as f64 / n as f64 } else { 0.0 };
+            ClampStats {
+                policy_ticks: n,
+                mean_t_max: if n > 0 { t_sum / n as f64 } else { 0.0 },
+                clamped_fraction: per(clamped),
+                held_fraction: per(held),
+            }
+        }))
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -615,6 +668,27 @@ impl Summary {
             STEADY_SKIP_FRACTION * 100.0,
             RISE_FRACTION * 100.0
         );
+        if self.trials.iter().any(|t| t.clamp.is_some()) {
+            let _ = write!(
+                out,
+                "\n\nsynchronization clamp, from the unit logs (ticks running a phase policy, all \
+                 units)\n{:<22} {:>12} {:>11} {:>14} {:>12}",
+                "trial", "policy ticks", "mean t_max", "clamped (t<1)", "no step"
+            );
+            for t in &self.trials {
+                if let Some(c) = &t.clamp {
+                    let _ = write!(
+                        out,
+                        "\n{:<22} {:>12} {:>11.3} {:>13.1}% {:>11.1}%",
+                        format!("{}/trial-{}", t.payload, t.trial),
+                        c.policy_ticks,
+                        c.mean_t_max,
+                        c.clamped_fraction * 100.0,
+                        c.held_fraction * 100.0
+                    );
+                }
+            }
+        }
         out
     }
 }
