@@ -371,5 +371,14 @@ fn a_simulated_mission_runs_as_separate_processes_and_logs_ground_truth() {
         assert_eq!(c.total(), c.stale + c.from_future, "unit {i}: {c:?}");
         assert!(c.stale <= 3, "unit {i}: {c:?}");
     }
-    assert!(out.join("summary.json").is_file() && out.join("mission_profile.png").is_file());
+    assert!(out.join("mission_profile.png").is_file());
+    // The summary pools the clamp's figures from the unit logs.
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let clamp = &summary["trials"][0]["clamp"];
+    assert!(clamp["policy_ticks"].as_u64().unwrap() > 0, "{clamp}");
+    assert!(
+        (0.0..=1.0).contains(&clamp["mean_t_max"].as_f64().unwrap()),
+        "{clamp}"
+    );
 }
