@@ -309,6 +309,14 @@ async fn trial_run(
         if let Some(status) = world.child.try_wait()? {
             bail!("the world exited early ({status})");
         }
+        for (i, unit) in units.iter_mut().enumerate() {
+            if let Some(status) = unit.child.try_wait()? {
+                bail!(
+                    "unit {i} exited ({status}) before the mission started; see {}",
+                    dir.join(format!("unit-{i}.log")).display()
+                );
+            }
+        }
     }
     if let Err(e) = operator::start(&mut console, Duration::from_secs(20)).await {
         eprintln!("mission sim: {e:#}");
