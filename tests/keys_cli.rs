@@ -5,17 +5,8 @@ mod common;
 
 use std::path::Path;
 
-use common::{fails_naming, moonhaul, stdout};
+use common::{fails_naming, generate_keys, stdout};
 use moonhaul_coord::KeyFile;
-
-fn generate(out: &Path, units: &str, extra: &[&str]) -> std::process::Output {
-    let out = out.to_str().unwrap();
-    let mut args = vec![
-        "keys", "generate", "--team", "moonhaul", "--units", units, "--out", out,
-    ];
-    args.extend_from_slice(extra);
-    moonhaul(&args)
-}
 
 /// Every run of 64 hex digits in `text` (what a secret looks like in the file).
 fn secrets(text: &str) -> Vec<String> {
@@ -36,7 +27,7 @@ fn generate_writes_a_private_file_and_prints_no_secret() {
     let dir = tempfile::tempdir().unwrap();
     // A missing folder is created too.
     let out = dir.path().join("config").join("moonhaul.keys.toml");
-    let printed = stdout(&generate(&out, "3", &["--epoch", "4"]));
+    let printed = stdout(&generate_keys(&out, "3", &["--epoch", "4"]));
     assert!(printed.contains(&out.display().to_string()), "{printed}");
     assert!(
         printed.contains("moonhaul") && printed.contains("epoch 4"),
@@ -64,7 +55,7 @@ fn generate_writes_a_private_file_and_prints_no_secret() {
 fn generate_never_replaces_a_key_file_without_force() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("team.keys.toml");
-    stdout(&generate(&out, "2", &[]));
+    stdout(&generate_keys(&out, "2", &[]));
     let before = std::fs::read(&out).unwrap();
     let err = fails_naming(
         &[
@@ -81,7 +72,7 @@ fn generate_never_replaces_a_key_file_without_force() {
     );
     assert!(err.contains("exists"), "{err}");
     assert_eq!(std::fs::read(&out).unwrap(), before);
-    let printed = stdout(&generate(&out, "2", &["--force", "--epoch", "2"]));
+    let printed = stdout(&generate_keys(&out, "2", &["--force", "--epoch", "2"]));
     assert!(printed.contains("replaced"), "{printed}");
     assert_ne!(std::fs::read(&out).unwrap(), before);
     assert_eq!(KeyFile::load(&out).unwrap().epoch(), 2);

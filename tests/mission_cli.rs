@@ -26,26 +26,12 @@ fn unit_bin() -> &'static str {
 
 fn keys(dir: &Path) -> PathBuf {
     let path = dir.join("keys.toml");
-    let out = common::moonhaul(&[
-        "keys",
-        "generate",
-        "--team",
-        "moonhaul",
-        "--units",
-        "2",
-        "--out",
-        path.to_str().unwrap(),
-    ]);
-    common::stdout(&out);
+    common::stdout(&common::generate_keys(&path, "2", &[]));
     path
 }
 
 fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    moonhaul_deploy::network::free_loopback_port().unwrap()
 }
 
 /// A daemon process, killed if the test fails before it ends it.

@@ -4,17 +4,8 @@ use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     let args = moonhaul_deploy::daemon::DaemonArgs::parse();
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .init();
-    let runtime = match tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-    {
+    moonhaul_deploy::daemon::init_tracing();
+    let runtime = match moonhaul_deploy::daemon::runtime() {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("error: cannot start the async runtime: {e}");

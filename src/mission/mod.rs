@@ -24,12 +24,8 @@ pub enum MissionCommand {
 }
 
 pub fn run(cmd: MissionCommand) -> Result<()> {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
-    init_tracing();
+    let runtime = moonhaul_deploy::daemon::runtime().context("starting the async runtime")?;
+    moonhaul_deploy::daemon::init_tracing();
     runtime.block_on(async move {
         match cmd {
             MissionCommand::Start(args) => operator::run("start", &args).await,
@@ -55,14 +51,4 @@ pub fn run(cmd: MissionCommand) -> Result<()> {
             }
         }
     })
-}
-
-/// `tracing` to stderr, level from `RUST_LOG` (default info).
-fn init_tracing() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
 }

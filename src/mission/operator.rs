@@ -10,7 +10,7 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::{KeyFile, Sealer};
@@ -19,6 +19,7 @@ use moonhaul_coord::message::{
 };
 use moonhaul_coord::Validator;
 use moonhaul_core::state::Phase;
+use moonhaul_deploy::daemon::wall_us;
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 
 #[derive(Debug, clap::Args)]
@@ -53,12 +54,6 @@ pub struct Console {
     team_size: usize,
     seq: u64,
     pub units: BTreeMap<usize, UnitView>,
-}
-
-fn wall_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
 }
 
 impl Console {

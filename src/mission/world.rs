@@ -25,10 +25,10 @@ use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::WorldFrame;
 use moonhaul_deploy::sim_link::{self, SimCommand, SimSensed};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
+use moonhaul_sim::task::encoder_reading;
 use moonhaul_sim::{EnvOptions, SimConfig};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 use tracing::{info, warn};
 
@@ -278,8 +278,8 @@ pub async fn run(args: WorldArgs) -> Result<()> {
     Ok(())
 }
 
-/// What unit `i`'s encoders and wrist-force estimate report: the truth with the training's
-/// encoder noise (the same `[sensing]` of configs/tasks.toml).
+/// What unit `i`'s encoders and wrist-force estimate report: the truth through the training's
+/// encoder model (`encoder_reading`, the `[sensing]` of configs/tasks.toml).
 fn sense(
     state: &EnvState,
     i: usize,
@@ -288,29 +288,16 @@ fn sense(
     tasks: &TaskConfig,
     rng: &mut ChaCha8Rng,
 ) -> SimSensed {
-    let s = &tasks.sensing;
     let truth = &state.units[i];
-    let mut noise = |std: f64| std * rng.sample::<f64, _>(StandardNormal);
-    let mut arm_position_rad = truth.state.arm.position_rad;
-    for q in &mut arm_position_rad {
-        *q += noise(s.arm_position_noise_std_rad);
-    }
-    let mut arm_velocity_radps = truth.state.arm.velocity_radps;
-    for v in &mut arm_velocity_radps {
-        *v += noise(s.arm_velocity_noise_std_radps);
-    }
-    let mut wheel_velocity_radps = truth.state.wheels.velocity_radps;
-    for v in &mut wheel_velocity_radps {
-        *v += noise(s.wheel_velocity_noise_std_radps);
-    }
+    let sensed = encoder_reading(&truth.state, &tasks.sensing, rng);
     SimSensed {
         unit: i,
         tick,
         stamp_us,
-        wheel_position_rad: truth.state.wheels.position_rad,
-        wheel_velocity_radps,
-        arm_position_rad,
-        arm_velocity_radps,
+        wheel_position_rad: sensed.wheels.position_rad,
+        wheel_velocity_radps: sensed.wheels.velocity_radps,
+        arm_position_rad: sensed.arm.position_rad,
+        arm_velocity_radps: sensed.arm.velocity_radps,
         grasp_force_n: truth.grasp.force_n,
     }
 }

@@ -12,6 +12,16 @@ pub fn moonhaul(args: &[&str]) -> Output {
         .expect("the moonhaul binary of this build runs")
 }
 
+/// `moonhaul keys generate` of team `moonhaul` with `units` units into `out`, plus `extra`.
+pub fn generate_keys(out: &std::path::Path, units: &str, extra: &[&str]) -> Output {
+    let out = out.to_str().unwrap();
+    let mut args = vec![
+        "keys", "generate", "--team", "moonhaul", "--units", units, "--out", out,
+    ];
+    args.extend_from_slice(extra);
+    moonhaul(&args)
+}
+
 /// Stdout of a run that must succeed.
 pub fn stdout(output: &Output) -> String {
     assert!(

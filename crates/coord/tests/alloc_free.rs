@@ -9,40 +9,10 @@ use moonhaul_coord::{
     Clamp, ClampInput, Directive, GateConfig, SyncConfig, Team, TeamSettings, UnitModel,
 };
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
-struct Counting;
-
-thread_local! {
-    static WATCHING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+mod support {
+    pub mod counting_alloc;
 }
-
-// SAFETY: forwards to the system allocator; only counts calls made on a watching thread.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if WATCHING.with(Cell::get) {
-            ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if WATCHING.with(Cell::get) {
-            ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static ALLOCATOR: Counting = Counting;
+use support::counting_alloc::counted;
 
 const PERIOD_US: u64 = 20_000;
 
@@ -136,36 +106,35 @@ fn gate_agreement_and_clamp_do_not_allocate_per_tick() {
 
     let mut issued = [UnitCommand::default(); 2];
     let mut outcomes = [0u32; 4];
-    WATCHING.with(|w| w.set(true));
-    for (k, (message, height)) in script.iter().enumerate() {
-        let now = message.stamp_us;
-        if k == 10 {
-            team.receive(&start);
+    let allocations = counted(|| {
+        for (k, (message, height)) in script.iter().enumerate() {
+            let now = message.stamp_us;
+            if k == 10 {
+                team.receive(&start);
+            }
+            team.receive(message);
+            let measured = Measurements {
+                payload_height_m: *height,
+                goal_distance_m: 1.0,
+                grasp_force_n: &forces,
+            };
+            let decision = team.tick(now, &measured, None);
+            let (previous, target) = &cases[k % 3];
+            let input = ClampInput {
+                sensed: &sensed,
+                previous,
+                target,
+            };
+            let report = clamp.step(&input, decision.hold(), &mut issued).unwrap();
+            let slot = match (decision.directive, report.hold) {
+                (Directive::Run(_), None) if report.t_max == 1.0 => 0,
+                (Directive::Run(_), None) => 1,
+                (Directive::Run(_), Some(_)) => 2,
+                (Directive::Hold(_), _) => 3,
+            };
+            outcomes[slot] += 1;
         }
-        team.receive(message);
-        let measured = Measurements {
-            payload_height_m: *height,
-            goal_distance_m: 1.0,
-            grasp_force_n: &forces,
-        };
-        let decision = team.tick(now, &measured, None);
-        let (previous, target) = &cases[k % 3];
-        let input = ClampInput {
-            sensed: &sensed,
-            previous,
-            target,
-        };
-        let report = clamp.step(&input, decision.hold(), &mut issued).unwrap();
-        let slot = match (decision.directive, report.hold) {
-            (Directive::Run(_), None) if report.t_max == 1.0 => 0,
-            (Directive::Run(_), None) => 1,
-            (Directive::Run(_), Some(_)) => 2,
-            (Directive::Hold(_), _) => 3,
-        };
-        outcomes[slot] += 1;
-    }
-    WATCHING.with(|w| w.set(false));
-    let allocations = ALLOCATIONS.with(Cell::get);
+    });
     assert_eq!(allocations, 0, "{allocations} allocations in 300 ticks");
     // Every path ran: full steps, clamped steps, no admissible step, requested holds.
     assert!(outcomes.iter().all(|&n| n > 0), "{outcomes:?}");

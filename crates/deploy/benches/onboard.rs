@@ -19,7 +19,7 @@ use moonhaul_coord::message::{Body, Envelope, OperatorCommand, Sender, PROTOCOL_
 use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
 use moonhaul_core::state::PlanarPose;
-use moonhaul_deploy::daemon::{load_policies, mock_hardware};
+use moonhaul_deploy::daemon::{load_policies, mock_hardware, wall_us};
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::tick::{Onboard, OnboardSettings};
@@ -136,6 +136,19 @@ impl Link {
 }
 
 impl Unit {
+    /// One tick on the wall clock on every frame waiting on `sub`, plus a newly stamped
+    /// operator start when `start` gives the team's keys.
+    fn tick_on(&mut self, sub: &Sub, start: Option<&KeyFile>) {
+        let now = wall_us();
+        let mut inbox = Vec::new();
+        while let Ok(Some(s)) = sub.try_recv() {
+            inbox.push(s.payload().to_bytes().into_owned());
+        }
+        inbox.extend(start.map(|keys| start_frame(keys, now)));
+        let refs: Vec<&[u8]> = inbox.iter().map(|v| v.as_slice()).collect();
+        self.tick(now, &refs);
+    }
+
     /// One tick on `inbox` frames at `now_us`; the unit's own frame is left in `self.frame`.
     fn tick(&mut self, now_us: u64, inbox: &[&[u8]]) {
         let mut reading = UnitReading::default();
@@ -254,14 +267,6 @@ async fn peer_round_trip(pings: usize) {
     link.close().await;
 }
 
-/// Wall-clock µs since the Unix epoch.
-fn wall_us() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_micros() as u64
-}
-
 async fn halt_latency(trials: usize) {
     let mut samples = Vec::with_capacity(trials);
     let mut rng = rand::rng();
@@ -292,16 +297,7 @@ async fn halt_latency(trials: usize) {
                 interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
                 while t_start.elapsed() < die_after {
                     interval.tick().await;
-                    let mut inbox = Vec::new();
-                    while let Ok(Some(s)) = sub1.try_recv() {
-                        inbox.push(s.payload().to_bytes().into_owned());
-                    }
-                    let now = wall_us();
-                    if t_start.elapsed() < start_for {
-                        inbox.push(start_frame(&keys, now));
-                    }
-                    let refs: Vec<&[u8]> = inbox.iter().map(|v| v.as_slice()).collect();
-                    u1.tick(now, &refs);
+                    u1.tick_on(&sub1, (t_start.elapsed() < start_for).then_some(&keys));
                     network::put(&pub1, &u1.frame).await.unwrap();
                     *last_sent.lock().unwrap() = Some(Instant::now());
                 }
@@ -312,16 +308,7 @@ async fn halt_latency(trials: usize) {
         let mut started = false;
         let latency = loop {
             interval.tick().await;
-            let mut inbox = Vec::new();
-            while let Ok(Some(s)) = sub0.try_recv() {
-                inbox.push(s.payload().to_bytes().into_owned());
-            }
-            let now = wall_us();
-            if t_start.elapsed() < start_for {
-                inbox.push(start_frame(&keys, now));
-            }
-            let refs: Vec<&[u8]> = inbox.iter().map(|v| v.as_slice()).collect();
-            u0.tick(now, &refs);
+            u0.tick_on(&sub0, (t_start.elapsed() < start_for).then_some(&keys));
             network::put(&pub0, &u0.frame).await.unwrap();
             let held = matches!(u0.record.hold, Some(HoldReason::SafetyStop(_)));
             started |= !held && u0.record.phase != moonhaul_core::state::Phase::Idle;
@@ -357,11 +344,7 @@ fn main() {
     let pings = arg("--pings", 1000);
     let trials = arg("--trials", 100);
     tick_latency(ticks);
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
+    let rt = moonhaul_deploy::daemon::runtime().unwrap();
     rt.block_on(async {
         peer_round_trip(pings).await;
         halt_latency(trials).await;

@@ -151,6 +151,25 @@ pub struct DaemonArgs {
     pub max_runtime_s: Option<f64>,
 }
 
+/// `tracing` to stderr, level from `RUST_LOG` (default info): the daemon's and the mission
+/// tools' logs.
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// The async runtime the daemon and the mission tools run on: two workers, timers and I/O.
+pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+}
+
 /// Loads a phase policy and checks it is one a unit runs for `phase`: its phase, its
 /// observation layout and its sizes.
 pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
@@ -250,8 +269,8 @@ impl Hardware {
     }
 }
 
-/// The system clock in µs since the Unix epoch.
-fn wall_us() -> u64 {
+/// The system clock in µs since the Unix epoch (the team clock of units on real hardware).
+pub fn wall_us() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64)
@@ -312,7 +331,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     };
     let session = network::open(&net).await?;
     let keyx = Keys::new(&settings.team);
-    let state_pub = network::control_publisher(&session, keyx.unit_state(unit)).await?;
+    // This unit's own key: the team subscription delivers its own state too, which is skipped.
+    let own_key = keyx.unit_state(unit);
+    let state_pub = network::control_publisher(&session, own_key.clone()).await?;
     let peers = session
         .declare_subscriber(keyx.all_unit_states())
         .await
@@ -367,7 +388,6 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let mut start_us: Option<u64> = None;
     let mut pending = args.inject.clone();
     let mut drop_peers = false;
-    let mut policy_nan = false;
     let mut deadline_misses = 0u64;
     let mut last_rejections = 0u64;
     let lockstep = args.hal == HalKind::Sim && !args.realtime;
@@ -406,14 +426,13 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
                             warn!(unit, error = %e, "injection refused");
                         }
                     }
-                    Injected::PolicyNan => policy_nan = true,
+                    Injected::PolicyNan => onboard.inject_policy_nan(),
                     Injected::DropPeers => drop_peers = true,
                 }
             } else {
                 k += 1;
             }
         }
-        let own_key = keyx.unit_state(unit);
         inbox.release(&mut onboard, now_us);
         if lockstep {
             wait_for_peers(
@@ -446,9 +465,6 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             drop_peers,
         );
         drain(&operator, &own_key, &mut inbox, &mut onboard, now_us, false);
-        if policy_nan {
-            onboard.latch_fault(FaultKind::Policy, "non-finite policy output (injected)");
-        }
         let before = onboard.phase();
         let out = onboard.tick(
             now_us,

@@ -62,13 +62,22 @@ pub struct PhasePolicies {
 }
 
 impl PhasePolicies {
-    fn get(&self, phase: Phase) -> Option<&Policy> {
-        match phase {
-            Phase::Lift => Some(&self.lift),
-            Phase::Transport => Some(&self.transport),
-            Phase::Place => Some(&self.place),
-            Phase::Idle => None,
-        }
+    /// Each phase's policy with the scratch it runs in, indexed by [`policy_slot`].
+    fn with_scratch(self) -> [(Policy, PolicyScratch); 3] {
+        [self.lift, self.transport, self.place].map(|p| {
+            let scratch = p.scratch();
+            (p, scratch)
+        })
+    }
+}
+
+/// Where `phase`'s policy sits in [`PhasePolicies::with_scratch`]; Idle has none.
+fn policy_slot(phase: Phase) -> Option<usize> {
+    match phase {
+        Phase::Lift => Some(0),
+        Phase::Transport => Some(1),
+        Phase::Place => Some(2),
+        Phase::Idle => None,
     }
 }
 
@@ -117,14 +126,6 @@ pub enum OnboardError {
     },
 }
 
-/// What this unit knows of a peer from its newest accepted message.
-#[derive(Debug, Clone, Copy, Default)]
-struct PeerState {
-    stamp_us: Option<u64>,
-    state: UnitState,
-    command: UnitCommand,
-}
-
 /// The phase episode in progress: what its goals are measured from.
 #[derive(Debug, Clone, Copy)]
 struct PhaseEpisode {
@@ -150,23 +151,27 @@ pub struct Onboard {
     tasks: TaskConfig,
     team: Team,
     clamp: Clamp,
-    policies: PhasePolicies,
-    scratch: [PolicyScratch; 3],
+    policies: [(Policy, PolicyScratch); 3],
     lift_index: usize,
     peer_lift_index: usize,
     odometry: PlanarPose,
     /// U_{k-1} of this unit.
     previous: UnitCommand,
-    peers: Vec<PeerState>,
+    /// Stamp of each peer's newest accepted state (`None`: never heard, or this unit). Its
+    /// state and command go straight into `sensed` and `previous_all`.
+    peer_stamp_us: Vec<Option<u64>>,
     reference: Option<GraspReference>,
     episode: PhaseEpisode,
     grasp_open: bool,
     resting_s: f64,
     latched_fault: Option<(FaultKind, &'static str)>,
+    /// Drill: every policy output is made NaN before the tick checks it.
+    corrupt_policy: bool,
     last_announce: Announcements,
     tick: u64,
     seq: u64,
-    // Reused per tick, so the tick does not allocate.
+    // The clamp's inputs, one entry per unit, reused per tick so the tick does not allocate:
+    // own entries are written by the tick, peers' by `receive`.
     sensed: Vec<UnitState>,
     previous_all: Vec<UnitCommand>,
     target_all: Vec<UnitCommand>,
@@ -210,11 +215,6 @@ impl Onboard {
             period_s,
             n,
         )?;
-        let scratch = [
-            policies.lift.scratch(),
-            policies.transport.scratch(),
-            policies.place.scratch(),
-        ];
         let message = Envelope {
             version: PROTOCOL_VERSION,
             team: settings.team.team.clone(),
@@ -236,13 +236,12 @@ impl Onboard {
             tasks: settings.tasks,
             team,
             clamp,
-            policies,
-            scratch,
+            policies: policies.with_scratch(),
             lift_index,
             peer_lift_index,
             odometry: settings.start_pose,
             previous: UnitCommand::default(),
-            peers: vec![PeerState::default(); n],
+            peer_stamp_us: vec![None; n],
             reference: None,
             episode: PhaseEpisode {
                 phase: Phase::Idle,
@@ -252,6 +251,7 @@ impl Onboard {
             grasp_open: false,
             resting_s: 0.0,
             latched_fault: None,
+            corrupt_policy: false,
             last_announce: Announcements::default(),
             tick: 0,
             seq: boot_us,
@@ -280,10 +280,10 @@ impl Onboard {
 
     /// Whether every peer's newest accepted state is stamped at or after `stamp_us`.
     pub fn peers_heard_since(&self, stamp_us: u64) -> bool {
-        self.peers
+        self.peer_stamp_us
             .iter()
             .enumerate()
-            .all(|(i, p)| i == self.unit || p.stamp_us.is_some_and(|t| t >= stamp_us))
+            .all(|(i, t)| i == self.unit || t.is_some_and(|t| t >= stamp_us))
     }
 
     /// This unit's own latched fault, if any.
@@ -294,15 +294,21 @@ impl Onboard {
     /// Takes in one message that passed the validator.
     pub fn receive(&mut self, message: &Envelope) {
         if let (Sender::Unit(i), Body::Unit(tick)) = (message.sender, &message.body) {
-            if let Some(peer) = self.peers.get_mut(i).filter(|_| i != self.unit) {
-                if peer.stamp_us.is_none_or(|t| message.stamp_us >= t) {
-                    peer.stamp_us = Some(message.stamp_us);
-                    peer.state = tick.state;
-                    peer.command = tick.command;
+            if let Some(stamp) = self.peer_stamp_us.get_mut(i).filter(|_| i != self.unit) {
+                if stamp.is_none_or(|t| message.stamp_us >= t) {
+                    *stamp = Some(message.stamp_us);
+                    self.sensed[i] = tick.state;
+                    self.previous_all[i] = tick.command;
                 }
             }
         }
         self.team.receive(message);
+    }
+
+    /// Drill: from now on the active policy's output is NaN, so the tick's own check of it
+    /// (and the stop that follows) runs as on a real failure.
+    pub fn inject_policy_nan(&mut self) {
+        self.corrupt_policy = true;
     }
 
     /// Latches a fault found outside the tick (the daemon's hardware read or write failed).
@@ -332,19 +338,14 @@ impl Onboard {
             }
         };
         let force_n = reading.and_then(|r| r.grasp_force_n);
-        for (i, peer) in self.peers.iter().enumerate() {
-            if i != self.unit {
-                self.sensed[i] = peer.state;
-                self.previous_all[i] = peer.command;
-                self.target_all[i] = peer.command;
-            }
-        }
+        // A peer's target F_k is unknowable: S = F = its last published command.
+        self.target_all.copy_from_slice(&self.previous_all);
         self.sensed[self.unit] = own;
         self.previous_all[self.unit] = self.previous;
 
         let mut obs = [0.0; ACTOR_OBS_DIM];
         let goal = self.goal(now_us);
-        let observed = self.observe(&goal, &mut obs);
+        let mut observed = self.observe(&goal, &mut obs);
         let lift_estimate_m = if observed {
             (obs[self.lift_index] + obs[self.peer_lift_index]) / 2.0
         } else {
@@ -369,9 +370,11 @@ impl Onboard {
             self.fault(),
         );
         if decision.phase != before {
+            // A new phase episode has new goals (and Lift a new rest grasp): observe again.
             self.begin_phase(decision.phase, now_us, &own);
+            observed = self.observe(&self.goal(now_us), &mut obs);
         }
-        let (hold, target) = self.target(&decision, now_us, &own, &mut obs);
+        let (hold, target) = self.target(&decision, &own, observed.then_some(&obs));
         let target = match target {
             Some(t) => t,
             None => {
@@ -427,12 +430,10 @@ impl Onboard {
         record.target = target;
         record.issued = issued;
         record.peer_age_us.clear();
-        for (i, peer) in self.peers.iter().enumerate() {
-            let age = peer
-                .stamp_us
-                .filter(|_| i != self.unit)
-                .map(|t| now_us.saturating_sub(t));
-            record.peer_age_us.push(age);
+        for stamp in &self.peer_stamp_us {
+            record
+                .peer_age_us
+                .push(stamp.map(|t| now_us.saturating_sub(t)));
         }
         record.fault = self.latched_fault.map(|(_, what)| what.into());
         record.rejected = *rejected;
@@ -506,7 +507,7 @@ impl Onboard {
 
     /// The neighbour in the closed chain (the paper's j): the next unit, wrapping.
     fn peer_index(&self) -> usize {
-        (self.unit + 1) % self.peers.len()
+        (self.unit + 1) % self.peer_stamp_us.len()
     }
 
     /// A newly committed phase starts its episode (goals from the odometry now). Entering Lift
@@ -526,28 +527,27 @@ impl Onboard {
     }
 
     /// The hold reason and this unit's target F_k (`None` target: the policy failed).
+    /// `obs`: this tick's o⁽ⁱ⁾ of the committed phase, `None` when it could not be formed.
     fn target(
         &mut self,
         decision: &Decision,
-        now_us: u64,
         own: &UnitState,
-        obs: &mut [f64; ACTOR_OBS_DIM],
+        obs: Option<&[f64; ACTOR_OBS_DIM]>,
     ) -> (Option<HoldReason>, Option<UnitCommand>) {
         let phase = match decision.directive {
             Directive::Hold(reason) => return (Some(reason), Some(hold_command(own))),
             Directive::Run(phase) => phase,
         };
-        let goal = self.goal(now_us);
-        let (Some(policy), true) = (self.policies.get(phase), self.observe(&goal, obs)) else {
+        let (Some(slot), Some(obs)) = (policy_slot(phase), obs) else {
             return (None, None);
         };
-        let slot = match phase {
-            Phase::Lift => 0,
-            Phase::Transport => 1,
-            _ => 2,
-        };
+        let (policy, scratch) = &mut self.policies[slot];
         let mut u = [0.0; UNIT_ACTION_DIM];
-        match policy.act(obs, &mut self.scratch[slot], &mut u) {
+        let acted = policy.act(obs, scratch, &mut u);
+        if self.corrupt_policy {
+            u[0] = f64::NAN;
+        }
+        match acted {
             Ok(()) if u.iter().all(|v| v.is_finite()) => (None, Some(UnitCommand::from_action(&u))),
             _ => (None, None),
         }

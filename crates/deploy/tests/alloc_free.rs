@@ -3,8 +3,6 @@
 //! start, the lift, a drive fault and the stop it causes. (Decoding frames off the network and
 //! encoding the log record, outside the tick, do allocate.)
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::time::Duration;
 
 use moonhaul_coord::message::{
@@ -19,37 +17,9 @@ use moonhaul_deploy::tick::{Onboard, OnboardSettings};
 use moonhaul_deploy::unit_config::UnitConfig;
 use moonhaul_hal::unit::{FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitReading};
 
-struct Counting;
-
-thread_local! {
-    static WATCHING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: forwards to the system allocator; only counts calls made on a watching thread.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if WATCHING.with(Cell::get) {
-            ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if WATCHING.with(Cell::get) {
-            ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static ALLOCATOR: Counting = Counting;
+#[path = "../../coord/tests/support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::counted;
 
 const PERIOD_US: u64 = 20_000;
 
@@ -103,13 +73,6 @@ fn the_tick_does_not_allocate() {
     // Allocations in the tick (with the messages it takes in), and in the mock drives' read
     // and write while no fault is latched (a HAL error carries its joint's name as a String).
     let (mut in_tick, mut in_hardware) = (0, 0);
-    let counted = |f: &mut dyn FnMut()| {
-        let before = ALLOCATIONS.with(Cell::get);
-        WATCHING.with(|w| w.set(true));
-        f();
-        WATCHING.with(|w| w.set(false));
-        ALLOCATIONS.with(Cell::get) - before
-    };
     for k in 1..=400u64 {
         let now = k * PERIOD_US;
         if k == 300 {
@@ -122,13 +85,13 @@ fn the_tick_does_not_allocate() {
         for (i, (onboard, hw)) in units.iter_mut().enumerate() {
             let healthy = k > 1 && k < 300;
             let mut read = Ok(());
-            let n = counted(&mut || read = hw.read(&mut reading));
+            let n = counted(|| read = hw.read(&mut reading));
             in_hardware += if healthy { n } else { 0 };
             if hw.fault().is_some() {
                 onboard.latch_fault(moonhaul_coord::message::FaultKind::Drive, "drive fault");
             }
             let mut output = None;
-            in_tick += counted(&mut || {
+            in_tick += counted(|| {
                 if let Some(m) = &inbox[1 - i] {
                     onboard.receive(m);
                 }
@@ -145,7 +108,7 @@ fn the_tick_does_not_allocate() {
             });
             outbox[i] = Some(onboard_message(onboard));
             let output = output.unwrap();
-            let n = counted(&mut || {
+            let n = counted(|| {
                 let _ = hw.write(&output);
             });
             in_hardware += if healthy { n } else { 0 };

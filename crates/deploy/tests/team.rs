@@ -403,10 +403,7 @@ fn a_clock_offset_beyond_the_bound_stops_the_team() {
 #[test]
 fn a_nan_policy_output_is_a_fault_that_stops_the_team() {
     let mut team = lifting();
-    team.units[0].onboard.latch_fault(
-        moonhaul_coord::message::FaultKind::Policy,
-        "non-finite policy output",
-    );
+    team.units[0].onboard.inject_policy_nan();
     team.run(3);
     holds_for(&team, 0, |r| matches!(r, StopReason::Fault(_)));
     holds_for(&team, 1, |r| r == StopReason::PeerStop { unit: 0 });

@@ -269,6 +269,26 @@ impl PhaseTask {
     }
 }
 
+/// What a unit's encoders report of its true state `truth`: the joints with the Gaussian
+/// noise of `[sensing]` (arm positions, arm velocities, wheel velocities, drawn in that order
+/// from `rng`), wheel positions as they are. The base pose and velocity are left as the truth;
+/// onboard they come from odometry. The training tasks and the mission's world process sense
+/// through this one function.
+pub fn encoder_reading(truth: &UnitState, sensing: &Sensing, rng: &mut ChaCha8Rng) -> UnitState {
+    let mut noise = |std: f64| std * rng.sample::<f64, _>(StandardNormal);
+    let mut sensed = *truth;
+    for q in &mut sensed.arm.position_rad {
+        *q += noise(sensing.arm_position_noise_std_rad);
+    }
+    for v in &mut sensed.arm.velocity_radps {
+        *v += noise(sensing.arm_velocity_noise_std_radps);
+    }
+    for v in &mut sensed.wheels.velocity_radps {
+        *v += noise(sensing.wheel_velocity_noise_std_radps);
+    }
+    sensed
+}
+
 /// One world's episode in progress.
 #[derive(Debug, Clone)]
 pub struct Episode {
@@ -457,20 +477,8 @@ impl Episode {
         rng: &mut ChaCha8Rng,
         odometry: bool,
     ) {
-        let s = &task.config.sensing;
-        let noise = |rng: &mut ChaCha8Rng, std: f64| std * rng.sample::<f64, _>(StandardNormal);
         for i in 0..UNITS {
-            let truth = &state.units[i].state;
-            let mut sensed = *truth;
-            for q in &mut sensed.arm.position_rad {
-                *q += noise(rng, s.arm_position_noise_std_rad);
-            }
-            for v in &mut sensed.arm.velocity_radps {
-                *v += noise(rng, s.arm_velocity_noise_std_radps);
-            }
-            for v in &mut sensed.wheels.velocity_radps {
-                *v += noise(rng, s.wheel_velocity_noise_std_radps);
-            }
+            let mut sensed = encoder_reading(&state.units[i].state, &task.config.sensing, rng);
             if odometry {
                 self.odometry[i] = scene.spec.integrate_base(
                     &self.odometry[i],
