@@ -368,3 +368,33 @@ fn a_simulated_mission_runs_as_separate_processes_and_logs_ground_truth() {
         "{clamp}"
     );
 }
+
+#[test]
+fn the_daemon_refuses_bad_arguments_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = keys(dir.path());
+    let config = moonhaul_core::config::repo_file("configs/unit.toml");
+    for (extra, needle) in [
+        (&["--clock-offset-ms", "NaN"][..], "--clock-offset-ms"),
+        (&["--max-runtime-s=-1"][..], "--max-runtime-s"),
+        (&["--start-pose", "1,2"][..], "--start-pose"),
+        (&["--unit-index", "7"][..], "--unit-index"),
+        (&["--inject", "motor@x"][..], "motor@x"),
+    ] {
+        let out = Command::new(unit_bin())
+            .arg("--config")
+            .arg(&config)
+            .args(["--hal", "mock", "--keys"])
+            .arg(&keys)
+            .args(extra)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            matches!(out.status.code(), Some(1 | 2)),
+            "{extra:?}: {stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{extra:?}: {stderr}");
+        assert!(stderr.contains(needle), "{extra:?}: {stderr}");
+    }
+}

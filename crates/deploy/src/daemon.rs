@@ -283,6 +283,18 @@ fn offset_us(t_us: u64, offset_ms: f64) -> u64 {
 
 /// Runs the daemon until a signal or `--max-runtime-s`; every exit path finishes the log.
 pub async fn run(args: DaemonArgs) -> Result<()> {
+    // A drill offset beyond an hour is a typo, not a clock fault.
+    if !(args.clock_offset_ms.is_finite() && args.clock_offset_ms.abs() <= 3.6e6) {
+        bail!(
+            "--clock-offset-ms {}: must be a finite offset of at most an hour",
+            args.clock_offset_ms
+        );
+    }
+    if let Some(m) = args.max_runtime_s {
+        if !(m.is_finite() && m > 0.0) {
+            bail!("--max-runtime-s {m}: must be a positive number of seconds");
+        }
+    }
     let mut config = UnitConfig::from_file(&args.config)?;
     if let Some(i) = args.unit_index {
         config.unit_index = i;
