@@ -33,7 +33,7 @@ use crate::unit::UnitSpec;
 
 /// Version of the observation layout below; bump it with any change to the fields or their
 /// meaning.
-pub const OBS_LAYOUT_VERSION: u32 = 1;
+pub const OBS_LAYOUT_VERSION: u32 = 2;
 
 /// The fields of o⁽ⁱ⁾ in order, with their widths.
 pub const OBS_FIELDS: [(&str, usize); 11] = [
@@ -76,6 +76,67 @@ pub fn field_range(name: &str) -> Option<std::ops::Range<usize>> {
         start += width;
     }
     None
+}
+
+/// Where field `name` starts in o⁽ⁱ⁾, at compile time (a name not in the layout fails the
+/// build where it is used in a constant).
+const fn field_start(name: &str) -> usize {
+    let mut start = 0;
+    let mut i = 0;
+    while i < OBS_FIELDS.len() {
+        let (field, width) = OBS_FIELDS[i];
+        if const_str_eq(field, name) {
+            return start;
+        }
+        start += width;
+        i += 1;
+    }
+    panic!("no such observation field");
+}
+
+const fn const_str_eq(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < a.len() {
+        if a[i] != b[i] {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}
+
+const CARGO_DISPLACEMENT: usize = field_start("cargo.ee_displacement_m");
+const PEER_DISPLACEMENT: usize = field_start("peer.ee_displacement_m");
+const GOAL_BASE: usize = field_start("goal.base");
+
+/// Typed reads of the fields of o⁽ⁱ⁾ that onboard estimates and evaluation use.
+#[derive(Debug, Clone, Copy)]
+pub struct ObservationView<'a>(pub &'a [f64; ACTOR_OBS_DIM]);
+
+impl ObservationView<'_> {
+    /// The cargo's lift by FK of the own arm since the rest grasp (z of Δxᶜ), m.
+    pub fn cargo_lift_m(&self) -> f64 {
+        self.0[CARGO_DISPLACEMENT + 2]
+    }
+
+    /// The same lift by FK of the peer's arm from its published joints, m.
+    pub fn peer_cargo_lift_m(&self) -> f64 {
+        self.0[PEER_DISPLACEMENT + 2]
+    }
+
+    /// The onboard payload-height estimate: the mean of both arms' FK lift, m.
+    pub fn lift_estimate_m(&self) -> f64 {
+        0.5 * (self.cargo_lift_m() + self.peer_cargo_lift_m())
+    }
+
+    /// The base goal relative to the own base, in the base frame (x forward), m.
+    pub fn goal_offset_m(&self) -> [f64; 2] {
+        [self.0[GOAL_BASE], self.0[GOAL_BASE + 1]]
+    }
 }
 
 /// Metadata key of the layout version in a policy file.
@@ -128,12 +189,18 @@ pub fn check_layout(
 }
 
 /// What a unit records when the grasp closes on the payload at rest, the origin of Δxᶜ and
-/// Δx⁽ʲ⁾. Both units are the same module grasping a point-symmetric formation, so the peer's
-/// rest grasp equals one's own and one reference serves both arms.
+/// Δx⁽ʲ⁾: its own and its peer's end-effector poses (each in its own base frame) and the peer's
+/// base pose. Each arm's displacement is measured from its own rest pose, so both units compute
+/// the same cargo lift from the same joints (layout version 2; version 1 measured the peer
+/// from the own rest pose, which put the two units' estimates apart by their arms' difference
+/// at rest, a centimetre with the randomized initial joints, and split the phase gate).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GraspReference {
     /// The end-effector pose in the base frame at the rest grasp.
     pub ee_rest_in_base: Isometry3<f64>,
+    /// The peer's end-effector pose in its own base frame at the rest grasp (from its
+    /// published joints).
+    pub peer_ee_rest_in_base: Isometry3<f64>,
     /// The peer's base pose in the own base frame at the rest grasp.
     pub peer_base_rest: PlanarPose,
 }
@@ -147,6 +214,7 @@ impl GraspReference {
     ) -> Result<Self, KinematicsError> {
         Ok(GraspReference {
             ee_rest_in_base: ee_in_base(spec, &own.arm.position_rad)?,
+            peer_ee_rest_in_base: ee_in_base(spec, &peer.arm.position_rad)?,
             peer_base_rest: relative_pose(&own.base_pose, &peer.base_pose),
         })
     }
@@ -223,7 +291,10 @@ pub fn unit_observation(
     let (dp, dr) = displacement(rest, &ee_in_base(spec, &own.arm.position_rad)?);
     push(dp.as_slice());
     push(dr.as_slice());
-    let (pdp, pdr) = displacement(rest, &ee_in_base(spec, &peer.arm.position_rad)?);
+    let (pdp, pdr) = displacement(
+        &reference.peer_ee_rest_in_base,
+        &ee_in_base(spec, &peer.arm.position_rad)?,
+    );
     push(pdp.as_slice());
     push(pdr.as_slice());
     let peer_base = relative_pose(&own.base_pose, &peer.base_pose);
@@ -272,6 +343,19 @@ mod tests {
         assert_eq!(field_range("cargo.ee_displacement_m"), Some(16..19));
         assert_eq!(field_range("goal.base"), Some(34..38));
         assert_eq!(field_range("nope"), None);
+        assert_eq!(CARGO_DISPLACEMENT, 16);
+        assert_eq!(
+            field_range("peer.ee_displacement_m").map(|r| r.start),
+            Some(PEER_DISPLACEMENT)
+        );
+        assert_eq!(GOAL_BASE, 34);
+        let mut obs = [0.0; ACTOR_OBS_DIM];
+        obs[18] = 0.2;
+        obs[PEER_DISPLACEMENT + 2] = 0.4;
+        obs[34] = 1.5;
+        let view = ObservationView(&obs);
+        assert!((view.lift_estimate_m() - 0.3).abs() < 1e-15);
+        assert_eq!(view.goal_offset_m(), [1.5, 0.0]);
         let mut extra = std::collections::BTreeMap::new();
         assert!(check_layout(&extra).is_err());
         extra.insert(LAYOUT_VERSION_KEY.into(), OBS_LAYOUT_VERSION.to_string());
@@ -280,7 +364,7 @@ mod tests {
         extra.insert(LAYOUT_VERSION_KEY.into(), "0".into());
         let err = check_layout(&extra).unwrap_err().to_string();
         assert!(
-            err.contains("version 0") && err.contains("version 1"),
+            err.contains("version 0") && err.contains("version 2"),
             "{err}"
         );
     }

@@ -45,6 +45,20 @@ pub struct UnitPoses {
     pub base_xy_m: Vector2<f64>,
 }
 
+impl UnitPoses {
+    /// One unit's two terms of d: (arm d_SE, base wheel metric), each 1 at its tolerance.
+    pub fn distances(&self, other: &UnitPoses, tol: &SyncTolerances) -> (f64, f64) {
+        let theta_max_rad = tol.arm_rotation_deg.to_radians();
+        let arm = pose_distance(&self.arm, &other.arm, tol.arm_translation_m, theta_max_rad);
+        let base = planar_distance(
+            &self.base_xy_m,
+            &other.base_xy_m,
+            &Vector2::from(tol.base_xy_m),
+        );
+        (arm, base)
+    }
+}
+
 /// The stacked state of a team of N units; `units[i]` belongs to unit i.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StackedState {
@@ -94,21 +108,18 @@ impl StackedState {
         tol: &SyncTolerances,
     ) -> Result<StackedDistance, StackedError> {
         self.check_same_team(other)?;
-        let theta_max_rad = tol.arm_rotation_deg.to_radians();
-        let delta_w = Vector2::from(tol.base_xy_m);
         let mut worst = StackedDistance {
             value: f64::NEG_INFINITY,
             binding: Subsystem::Arm(0),
         };
         for (i, (x, y)) in self.units.iter().zip(&other.units).enumerate() {
-            let arm = pose_distance(&x.arm, &y.arm, tol.arm_translation_m, theta_max_rad);
+            let (arm, base) = x.distances(y, tol);
             if arm > worst.value {
                 worst = StackedDistance {
                     value: arm,
                     binding: Subsystem::Arm(i),
                 };
             }
-            let base = planar_distance(&x.base_xy_m, &y.base_xy_m, &delta_w);
             if base > worst.value {
                 worst = StackedDistance {
                     value: base,

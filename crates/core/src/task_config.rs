@@ -6,7 +6,10 @@
 use crate::config::{
     self, in_range, interval, positive, section, ConfigError, FieldError, Validate,
 };
+use crate::observation::PhaseGoal;
 use crate::state::Phase;
+use crate::state::PlanarPose;
+use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -19,13 +22,15 @@ pub struct Sensing {
     pub wheel_velocity_noise_std_radps: f64,
 }
 
-/// The raw-action → command map.
+/// The increment map of [`crate::action::ActionMap`]: how far one tick's action may move the
+/// previous command.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionSettings {
-    pub wheel_scale_radps: f64,
-    pub arm_scale_margin: f64,
-    pub arm_scale_min_rad: f64,
+    /// Largest change of a wheel velocity command per tick, rad/s.
+    pub wheel_step_radps: f64,
+    /// Largest move of an arm joint position command per tick, rad.
+    pub arm_step_rad: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -116,9 +121,8 @@ impl Validate for TaskConfig {
         })?;
         section("action", || {
             let a = &self.action;
-            positive("wheel_scale_radps", a.wheel_scale_radps, 100.0)?;
-            positive("arm_scale_margin", a.arm_scale_margin, 10.0)?;
-            positive("arm_scale_min_rad", a.arm_scale_min_rad, 6.3)
+            positive("wheel_step_radps", a.wheel_step_radps, 10.0)?;
+            positive("arm_step_rad", a.arm_step_rad, 0.5)
         })?;
         section("safety", || {
             positive("max_tilt_deg", self.safety.max_tilt_deg, 90.0)
@@ -188,6 +192,42 @@ impl TaskConfig {
             Phase::Lift => self.lift.duration_s,
             Phase::Transport => self.transport.duration_s,
             Phase::Place | Phase::Idle => self.place.duration_s,
+        }
+    }
+
+    /// A unit's goal in a phase episode — the one definition the training tasks, evaluation and
+    /// the onboard tick share: h* = `height_m`, the base `travel_m` along +X from `start` (its
+    /// pose when the episode began), and v_cmd, the transport profile's speed `phase_s` into a
+    /// transport (zero in the other phases).
+    pub fn phase_goal(
+        &self,
+        phase: Phase,
+        height_m: f64,
+        start: &PlanarPose,
+        travel_m: f64,
+        phase_s: f64,
+    ) -> PhaseGoal {
+        let speed_mps = if phase == Phase::Transport {
+            self.profile().speed_at(phase_s)
+        } else {
+            0.0
+        };
+        PhaseGoal {
+            height_m,
+            base_goal_m: Vector2::new(start.x_m + travel_m, start.y_m),
+            velocity_mps: Vector2::new(speed_mps, 0.0),
+        }
+    }
+
+    /// h* and the base travel of `phase` in a mission as the units fly it: lift to (and carry
+    /// at) `transport.start_height_m`, carry `transport.distance_m`, set down where the
+    /// transport ended.
+    pub fn mission_targets(&self, phase: Phase) -> (f64, f64) {
+        let t = &self.transport;
+        match phase {
+            Phase::Idle | Phase::Lift => (t.start_height_m, 0.0),
+            Phase::Transport => (t.start_height_m, t.distance_m),
+            Phase::Place => (0.0, 0.0),
         }
     }
 

@@ -1,15 +1,34 @@
 //! Damped-least-squares inverse kinematics of a 7-DOF arm chain, on core's forward kinematics.
 //!
-//! Used where the simulator needs arm joint positions for an end-effector pose: the grasp
-//! configuration at reset and the scripted controller's lift and lowering. The Jacobian is
+//! Used wherever arm joint positions are needed for an end-effector pose: the simulator's grasp
+//! configuration at reset, and the scripted controller's lift and lowering (in the simulator
+//! and onboard). Allocation-free, so the onboard tick can run it. The Jacobian is
 //! taken by central differences of [`Chain::forward`]; at 7 joints that is 14 FK calls per
 //! iteration, microseconds, and it cannot disagree with the FK it inverts.
 
-use moonhaul_core::kinematics::Chain;
-use moonhaul_core::state::ARM_JOINTS;
 use nalgebra::{Isometry3, SMatrix, SVector, Vector6};
 
-use crate::SimError;
+use crate::kinematics::{Chain, KinematicsError};
+use crate::state::ARM_JOINTS;
+
+/// Why IK found no solution.
+#[derive(Debug, thiserror::Error)]
+pub enum IkError {
+    #[error("IK needs a {ARM_JOINTS}-joint chain, got {0}")]
+    ChainDof(usize),
+    #[error("IK: singular damped system")]
+    Singular,
+    #[error("IK did not reach target {target_m:?} within {iterations} iterations")]
+    NotReached {
+        target_m: [f64; 3],
+        iterations: usize,
+        /// The last iterate: within the joint limits, as close as the solver got (a target
+        /// beyond the limits ends here).
+        best_q: [f64; ARM_JOINTS],
+    },
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+}
 
 /// Convergence and step settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,10 +67,8 @@ fn pose_error(current: &Isometry3<f64>, target: &Isometry3<f64>) -> Vector6<f64>
     Vector6::new(dp.x, dp.y, dp.z, dr.x, dr.y, dr.z)
 }
 
-fn forward(chain: &Chain, q: &[f64; ARM_JOINTS]) -> Result<Isometry3<f64>, SimError> {
-    chain
-        .forward(q)
-        .map_err(|e| SimError::Kinematics(e.to_string()))
+fn forward(chain: &Chain, q: &[f64; ARM_JOINTS]) -> Result<Isometry3<f64>, IkError> {
+    Ok(chain.forward(q)?)
 }
 
 /// One damped-least-squares step plus the null-space pull toward mid-range.
@@ -59,13 +76,13 @@ fn damped_step(
     jacobian: &SMatrix<f64, 6, ARM_JOINTS>,
     e: &Vector6<f64>,
     q: &[f64; ARM_JOINTS],
-    limits: &[(f64, f64)],
+    limits: &[(f64, f64); ARM_JOINTS],
     settings: &IkSettings,
-) -> Result<SVector<f64, ARM_JOINTS>, SimError> {
+) -> Result<SVector<f64, ARM_JOINTS>, IkError> {
     let jjt = jacobian * jacobian.transpose()
         + SMatrix::<f64, 6, 6>::identity() * settings.damping.powi(2);
     let Some(c) = jjt.cholesky() else {
-        return Err(SimError::Kinematics("IK: singular damped system".into()));
+        return Err(IkError::Singular);
     };
     let pinv = jacobian.transpose() * c.solve(&SMatrix::<f64, 6, 6>::identity());
     // Only while far from the target: the damped projector leaks a little of the pull into
@@ -90,14 +107,14 @@ pub fn solve(
     target: &Isometry3<f64>,
     seed: &[f64; ARM_JOINTS],
     settings: &IkSettings,
-) -> Result<[f64; ARM_JOINTS], SimError> {
+) -> Result<[f64; ARM_JOINTS], IkError> {
     if chain.dof() != ARM_JOINTS {
-        return Err(SimError::Kinematics(format!(
-            "IK needs a {ARM_JOINTS}-joint chain, got {}",
-            chain.dof()
-        )));
+        return Err(IkError::ChainDof(chain.dof()));
     }
-    let limits: Vec<(f64, f64)> = chain.limits().map(|l| (l.lower, l.upper)).collect();
+    let mut limits = [(0.0, 0.0); ARM_JOINTS];
+    for (l, j) in limits.iter_mut().zip(chain.limits()) {
+        *l = (j.lower, j.upper);
+    }
     let mut q = *seed;
     for _ in 0..settings.max_iterations {
         let e = pose_error(&forward(chain, &q)?, target);
@@ -138,17 +155,18 @@ pub fn solve(
             q[j] = (q[j] + step[j]).clamp(*lo, *hi);
         }
     }
-    Err(SimError::Kinematics(format!(
-        "IK did not reach target {:?} within {} iterations",
-        target.translation.vector.as_slice(),
-        settings.max_iterations
-    )))
+    let t = target.translation.vector;
+    Err(IkError::NotReached {
+        target_m: [t.x, t.y, t.z],
+        iterations: settings.max_iterations,
+        best_q: q,
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use moonhaul_core::kinematics::KinematicTree;
+    use crate::kinematics::KinematicTree;
 
     #[test]
     fn recovers_a_reachable_pose_from_a_nearby_seed() {
