@@ -3,9 +3,9 @@
 //!
 //! With S_k = U_{k-1} (last tick's commands) and F_k (this tick's target), for t ∈ [0, 1]:
 //! - T(t, S_k, F_k) interpolates every unit's command in **joint space**: (1 − t)·S + t·F on the
-//!   two wheel velocities and the seven arm joint positions. The policies output absolute joint
-//!   targets, so the paper's increment is Δ(U_{k-1}, a_k) = a_k − U_{k-1} and, ⊕ being
-//!   addition in joint space, F_k = U_{k-1} ⊕ Δ = a_k: the caller passes the policy outputs.
+//!   two wheel velocities and the seven arm joint positions. F_k = U_{k-1} ⊕ Δ(U_{k-1}, a_k) is
+//!   formed by the caller from the controller's increment ([`moonhaul_core::action`], through
+//!   [`crate::pipeline`]), ⊕ being addition in joint space.
 //! - Admissibility is judged in **task space**. Each unit's commanded base pose is its sensed
 //!   base pose integrated for one control period under the interpolated wheel velocities
 //!   (differential drive); its commanded end-effector pose is that base pose · arm mount ·
@@ -23,8 +23,11 @@
 //!   fall short of the maximum only when that budget runs out, or by an admissible stretch
 //!   lying inside the bisected cell above its first crossing.
 //! - **Hold** when no t is admissible, or when the caller asks (safety stop σ, Idle, a pending
-//!   phase change): every arm is commanded to its sensed joint positions and every wheel to
-//!   zero velocity. Its task image is exactly Y_k (d = 0), so a hold is always admissible.
+//!   phase change): every wheel is commanded to zero velocity and every arm to its previous
+//!   command U_{k-1}. A position servo holding U_{k-1} keeps the payload where it is; commanding
+//!   the sensed joints instead would lower the servo's setpoint by its tracking error every
+//!   held tick and let a loaded arm sink. A hold is therefore not always inside V_k (U_{k-1}
+//!   may itself be out of tolerance); [`crate::pipeline`] owns the rule for that case.
 
 use crate::config::{SearchConfig, SyncConfig};
 use crate::message::{StopReason, Transition};
@@ -103,8 +106,18 @@ pub enum ClampError {
     Stacked(#[from] StackedError),
 }
 
-/// The hold command of one unit: arm at its sensed joint positions, wheels stopped.
-pub fn hold_command(sensed: &UnitState) -> UnitCommand {
+/// The hold command of one unit: arm at its previous command, wheels stopped.
+pub fn hold_command(previous: &UnitCommand) -> UnitCommand {
+    UnitCommand {
+        wheel_velocity_radps: [0.0; WHEEL_JOINTS],
+        arm_position_rad: previous.arm_position_rad,
+    }
+}
+
+/// A hold anchored on what the unit senses: arm at its sensed joints, wheels stopped. The first
+/// command a unit issues (it has no previous one), and the re-anchored hold after its drives
+/// could not reach their command.
+pub fn anchor_command(sensed: &UnitState) -> UnitCommand {
     UnitCommand {
         wheel_velocity_radps: [0.0; WHEEL_JOINTS],
         arm_position_rad: sensed.arm.position_rad,
@@ -345,7 +358,7 @@ impl Clamp {
         distance: Option<StackedDistance>,
         issued: &mut [UnitCommand],
     ) -> ClampReport {
-        for (u, s) in issued.iter_mut().zip(input.sensed) {
+        for (u, s) in issued.iter_mut().zip(input.previous) {
             *u = hold_command(s);
         }
         ClampReport {

@@ -16,6 +16,17 @@ pub use moonhaul_core::config::ConfigError;
 pub struct SyncConfig {
     pub tolerances: SyncTolerances,
     pub search: SearchConfig,
+    pub hold: HoldConfig,
+}
+
+/// The rule when no step is admissible (not in the paper; see `configs/sync.toml` and
+/// [`crate::pipeline`]).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HoldConfig {
+    /// Consecutive ticks a unit's own last command may stay beyond the clamp's tolerance of
+    /// its sensed state (d > 1: its drives cannot reach it) before it raises a safety stop.
+    pub tracking_stop_ticks: u32,
 }
 
 /// How the clamp searches t_max (see `configs/sync.toml`).
@@ -176,6 +187,14 @@ impl Validate for SyncConfig {
             count("scan_cells", s.scan_cells.into(), 1, 4096)?;
             count("max_evaluations", s.max_evaluations.into(), 1, 100_000)?;
             positive("bisection_tolerance", s.bisection_tolerance, 0.5)
+        })?;
+        section("hold", || {
+            count(
+                "tracking_stop_ticks",
+                self.hold.tracking_stop_ticks.into(),
+                1,
+                MAX_TICKS,
+            )
         })
     }
 }

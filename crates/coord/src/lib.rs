@@ -6,6 +6,8 @@
 //! - [`team`]: agreement of N units on phase changes (a barrier) and the team-wide safety stop;
 //! - [`clamp`]: the synchronization clamp that admits the largest safe step toward the policies'
 //!   target (eqs. stacked_state … stacked_metric) and names the subsystem that limits it;
+//! - [`pipeline`]: the one action pipeline (increment → F_k → clamp → U_k) and the hold rule,
+//!   called by training, evaluation and the onboard tick alike;
 //! - [`message`]: versioned peer messages and their validation (authentication, replay
 //!   protection);
 //! - [`auth`]: the authenticated wire frame (HMAC-SHA256) and the team key file;
@@ -24,6 +26,7 @@ pub mod config;
 pub mod gate;
 pub mod message;
 pub mod model;
+pub mod pipeline;
 pub mod team;
 
 pub use auth::{KeyFile, Sealer};
@@ -32,4 +35,5 @@ pub use config::{GateConfig, SyncConfig, TeamError, TeamSettings};
 pub use gate::{Measurements, PhaseGate};
 pub use message::{Envelope, Validator};
 pub use model::UnitModel;
+pub use pipeline::{ActionPipeline, Increment, PipelineInput, PipelineReport};
 pub use team::{Decision, Directive, Team};

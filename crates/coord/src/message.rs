@@ -213,6 +213,9 @@ pub enum FaultKind {
     Sensor,
     /// The policy or the clamp produced an unusable command.
     Policy,
+    /// The unit's drives stayed beyond the clamp's tolerance of their command for
+    /// `hold.tracking_stop_ticks` (configs/sync.toml): they cannot reach it.
+    Tracking,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
