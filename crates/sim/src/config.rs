@@ -42,21 +42,26 @@ pub struct PhysicsConfig {
     pub prediction_distance_m: f64,
 }
 
-/// Joint motor gains; torques stay within each joint's URDF effort limit.
+/// Joint drive gains; torques stay within each joint's URDF effort limit.
 ///
-/// Arm position motors use rapier's acceleration-based model, which scales the gains by each
-/// joint's effective inertia within its own arm: one pair serves the 4 kg shoulder and the
-/// 0.3 kg wrist alike, each joint a spring–damper of natural frequency √stiffness rad/s. The
-/// payload is not part of that inertia, so a held payload makes the arms sag a little.
-/// Wheel velocity motors are force-based, torque = gain · (ω_cmd − ω): an acceleration-based
-/// wheel motor would be scaled by the wheel's own tiny inertia and could not push the base.
+/// Each arm joint is a position servo with velocity and gravity feed-forward (see
+/// `scene/actuation.rs`): a force-based spring–damper, torque = K·(q_cmd − q) + D·(q̇_cmd − q̇),
+/// whose stiffness is the joint's URDF effort limit over `arm_full_effort_error_rad` (the
+/// shoulder 1600 N·m/rad, the wrist 200 N·m/rad at the default) and whose damping is
+/// `arm_damping_time_s` × K. A stiffness proportional to the joint's torque rating is what a
+/// real arm's joint controllers have; rapier's acceleration-based motor would scale it by the
+/// joint's own link inertia instead, which left the 0.002 kg·m² wrist at ~5 N·m/rad and let the
+/// closed chain twist it by 5°. Wheel velocity motors are force-based, torque =
+/// gain · (ω_cmd − ω).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MotorConfig {
-    /// Arm position-motor stiffness, 1/s².
-    pub arm_stiffness_per_s2: f64,
-    /// Arm position-motor damping, 1/s.
-    pub arm_damping_per_s: f64,
+    /// Position error at which an arm joint's spring reaches the joint's URDF effort limit,
+    /// rad (default 0.2).
+    pub arm_full_effort_error_rad: f64,
+    /// Arm damping as a time constant of the spring, s (default 0.02, one control period):
+    /// D = K · this.
+    pub arm_damping_time_s: f64,
     /// Wheel velocity-motor gain, N·m·s/rad.
     pub wheel_gain_nms_per_rad: f64,
 }
@@ -196,8 +201,12 @@ impl Validate for SimConfig {
         })?;
         section("motors", || {
             let m = &self.motors;
-            positive("arm_stiffness_per_s2", m.arm_stiffness_per_s2, 1e6)?;
-            positive("arm_damping_per_s", m.arm_damping_per_s, 1e4)?;
+            positive(
+                "arm_full_effort_error_rad",
+                m.arm_full_effort_error_rad,
+                3.2,
+            )?;
+            positive("arm_damping_time_s", m.arm_damping_time_s, 1.0)?;
             positive("wheel_gain_nms_per_rad", m.wheel_gain_nms_per_rad, 1e4)
         })?;
         section("grasp", || {

@@ -25,7 +25,7 @@ pub mod accuracy;
 pub mod batch;
 pub mod config;
 pub mod convert;
-pub mod ik;
+pub use moonhaul_core::ik;
 pub mod model;
 pub mod randomization;
 pub mod scene;

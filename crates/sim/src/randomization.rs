@@ -207,11 +207,12 @@ impl Randomization {
         }
     }
 
-    /// The nominal episode with `payload`: mid-range friction, flat ground, no offsets.
+    /// The nominal episode with `payload`: mid-range friction and payload mass scale (1 with
+    /// the shipped range), flat ground, no offsets.
     pub fn nominal(&self, payload: PayloadKind) -> EpisodeDraw {
         EpisodeDraw {
             payload,
-            payload_mass_scale: 1.0,
+            payload_mass_scale: 0.5 * (self.payload_mass_scale[0] + self.payload_mass_scale[1]),
             wheel_friction: 0.5 * (self.wheel_friction[0] + self.wheel_friction[1]),
             initial_joint_offset_rad: [[0.0; ARM_JOINTS]; 2],
             terrain: None,

@@ -14,8 +14,8 @@
 //! velocities are negated to move the payload toward +X.
 //!
 //! **Bodies.** Each unit is one reduced-coordinate rapier multibody (free base, two wheel
-//! joints with velocity motors, seven arm joints with position motors, limits, URDF effort
-//! limits and damping). The payload is a free rigid body. Each grasp is an impulse fixed joint
+//! joints with velocity motors, seven arm joints with position servos that hold a load without
+//! sag, limits, URDF effort limits and damping). The payload is a free rigid body. Each grasp is an impulse fixed joint
 //! between an end effector and the payload, made at reset from the actual relative pose and
 //! removed on release or when its wrench exceeds the configured limit. Only wheels, casters,
 //! the payload and the ground collide.
@@ -34,8 +34,9 @@
 //! **Files.** This root holds the shared types ([`SceneModel`], [`Env`]); the private
 //! submodules hold one concept each: `payload` loads and checks payload URDFs, `grasp` solves
 //! the grasp configuration, `world` builds the rapier world at reset, `ground` is the terrain
-//! heightfield, `grasp_joint` makes, measures and breaks the grasps, `actuation` applies
-//! commands to the motors, and `readout` reads the world into an [`EnvState`].
+//! heightfield, `grasp_joint` makes, measures and breaks the grasps, `actuation` runs the
+//! drives (wheel velocity motors, arm position servos) on the commands, and `readout` reads the
+//! world into an [`EnvState`].
 
 mod actuation;
 mod grasp;
@@ -127,6 +128,9 @@ pub struct SceneModel {
     pub payloads: HashMap<PayloadKind, PayloadModel>,
     wheel_bodies: [usize; WHEEL_JOINTS],
     arm_bodies: [usize; ARM_JOINTS],
+    /// Per arm joint, the bodies outboard of it (its own body included): what its drive's
+    /// gravity feed-forward holds.
+    arm_subtree: [Vec<usize>; ARM_JOINTS],
     ee_body: usize,
     ee_offset: Isometry3<f64>,
     /// rapier pipeline steps per control step.
@@ -157,6 +161,23 @@ impl SceneModel {
             *b = unit.joint_body(name)?;
         }
         let (ee_body, ee_offset) = unit.link_frame(EE_LINK)?;
+        let outboard = |root: usize, body: usize| {
+            let mut b = body;
+            loop {
+                if b == root {
+                    return true;
+                }
+                match &unit.bodies[b].joint {
+                    Some(j) => b = j.parent,
+                    None => return false,
+                }
+            }
+        };
+        let arm_subtree = arm_bodies.map(|root| {
+            (0..unit.bodies.len())
+                .filter(|&b| outboard(root, b))
+                .collect::<Vec<_>>()
+        });
         let mut scene = SceneModel {
             pipeline_steps: config.pipeline_steps_per_control(),
             decimation: config.decimation(),
@@ -167,6 +188,7 @@ impl SceneModel {
             payloads: HashMap::new(),
             wheel_bodies,
             arm_bodies,
+            arm_subtree,
             ee_body,
             ee_offset,
         };
@@ -230,6 +252,8 @@ pub struct Env {
     grasps: [Option<ImpulseJointHandle>; UNITS],
     grasp_state: [GraspState; UNITS],
     grasp_broken: bool,
+    /// Each unit's arm-drive memory (last commands, for the velocity feed-forward).
+    drives: [actuation::ArmDrive; UNITS],
     payload_kind: PayloadKind,
     draw: EpisodeDraw,
     noise: CommandNoise,

@@ -27,18 +27,29 @@
 //! [`moonhaul_core::observation::unit_observation`] of those readings; the critic additionally
 //! sees privileged truth ([`CRITIC_EXTRA`]).
 //!
-//! **Actions.** u⁽ⁱ⁾ = `offset + scale ⊙ a` (raw policy output a ∈ ℝ⁹): wheels around 0 with
-//! `action.wheel_scale_radps`; arm joints around the phase's starting grasp (at rest for lift,
-//! lifted for transport and place) of the first training payload,
-//! each scaled to `action.arm_scale_margin` × the distance that joint travels along the grasp's
-//! lift path (at least `arm_scale_min_rad`). The map is what the policy file records; the
-//! joint limits clamp the result in the simulator as the HAL's limits do onboard.
+//! **Rest reference of a lifted start.** The onboard lift estimate is the FK lift of the end
+//! effector since the rest grasp. A lifted start has no rest grasp of its own, so it takes the
+//! commanded grasp solution (`PayloadModel::grasp_q_rad`, where the mission's lift began): the
+//! arm drives hold their set-points (see `scene/actuation.rs`) and the start is settled with
+//! the payload in the arms, so the estimate equals the start lift, and the true payload height
+//! is that lift plus the 2 mm the world spawns it above the ground (checked within 5 mm for
+//! every shipped payload in `tests/drives.rs`).
+//!
+//! **Actions.** The paper's increment through the one action pipeline
+//! ([`moonhaul_coord::pipeline`]), exactly as onboard: a raw policy output a ∈ ℝ⁹ is scaled to
+//! the increment Δ = step ⊙ a (`[action]` of tasks.toml, [`moonhaul_core::action`]; the exported
+//! policy's output affine is this scale), F = U_{k−1} + clip(Δ, ±step), then each unit's clamp
+//! over both units' stacked state (its own F, the peer's S = F = U_{k−1}) gives U_k. Every
+//! episode starts anchored on the sensed joints (wheels stopped). A unit whose drives stay
+//! beyond tolerance of their command for `hold.tracking_stop_ticks` raises a safety stop
+//! onboard; here that ends the episode ([`Termination::TrackingLost`]).
 
+use moonhaul_coord::clamp::anchor_command;
+use moonhaul_coord::{ActionPipeline, Increment, PipelineInput, PipelineReport, SyncConfig};
+use moonhaul_core::action::ActionMap;
 use moonhaul_core::observation::{unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM};
 use moonhaul_core::seed::stream_seed;
-use moonhaul_core::state::{
-    Phase, PlanarPose, UnitCommand, UnitState, ARM_JOINTS, UNIT_ACTION_DIM, WHEEL_JOINTS,
-};
+use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
 use nalgebra::Vector2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -66,6 +77,8 @@ pub enum Termination {
     GraspBroken,
     Tilted,
     NonFinite,
+    /// A unit's drives could not reach its command (the onboard hold rule's safety stop).
+    TrackingLost,
 }
 
 /// The answer of [`Episode::advance`].
@@ -85,40 +98,33 @@ pub struct PhaseTask {
     /// the velocity profile ends, then place), the policy never told the phase.
     pub mission: bool,
     pub config: TaskConfig,
-    action_scale: [f64; UNIT_ACTION_DIM],
-    action_offset: [f64; UNIT_ACTION_DIM],
+    /// The synchronization clamp and hold rule of `configs/sync.toml`.
+    pub sync: SyncConfig,
+    map: ActionMap,
     control_period_s: f64,
     max_steps: u64,
 }
 
 impl PhaseTask {
-    /// The task of `phase` on `scene`; the arm action map is built around the grasp the task
-    /// starts in (resting for lift, lifted for transport and place) of the first training
-    /// payload (`randomization.payloads[0]`), so a zero action holds the start.
-    pub fn new(phase: Phase, config: TaskConfig, scene: &SceneModel) -> Result<Self, SimError> {
+    /// The task of `phase` on `scene`, stepping through the clamp of `sync`.
+    pub fn new(
+        phase: Phase,
+        config: TaskConfig,
+        sync: SyncConfig,
+        scene: &SceneModel,
+    ) -> Result<Self, SimError> {
         if phase == Phase::Idle {
             return Err(SimError::Config {
                 field: "phase",
                 reason: "idle has no task".into(),
             });
         }
-        let first = scene.config.randomization.payloads[0];
-        let payload = scene.payload(first)?;
-        let envelope = payload.lift_envelope_rad();
-        let start_q = payload.lift_q(config.start_lift_m(phase));
-        let a = &config.action;
-        let mut scale = [a.wheel_scale_radps; UNIT_ACTION_DIM];
-        let mut offset = [0.0; UNIT_ACTION_DIM];
-        for j in 0..ARM_JOINTS {
-            scale[WHEEL_JOINTS + j] = (a.arm_scale_margin * envelope[j]).max(a.arm_scale_min_rad);
-            offset[WHEEL_JOINTS + j] = start_q[j];
-        }
         let control_period_s = 1.0 / scene.config.control_hz;
         Ok(PhaseTask {
             phase,
             mission: false,
-            action_scale: scale,
-            action_offset: offset,
+            map: ActionMap::from_settings(&config.action),
+            sync,
             max_steps: (config.duration_s(phase) / control_period_s).round() as u64,
             control_period_s,
             config,
@@ -126,8 +132,12 @@ impl PhaseTask {
     }
 
     /// The monolithic baseline's task: the whole mission, lift + transport + place long.
-    pub fn mission(config: TaskConfig, scene: &SceneModel) -> Result<Self, SimError> {
-        let mut task = Self::new(Phase::Lift, config, scene)?;
+    pub fn mission(
+        config: TaskConfig,
+        sync: SyncConfig,
+        scene: &SceneModel,
+    ) -> Result<Self, SimError> {
+        let mut task = Self::new(Phase::Lift, config, sync, scene)?;
         let total_s: f64 = [Phase::Lift, Phase::Transport, Phase::Place]
             .iter()
             .map(|&p| config.duration_s(p))
@@ -137,12 +147,9 @@ impl PhaseTask {
         Ok(task)
     }
 
-    pub fn action_scale(&self) -> &[f64; UNIT_ACTION_DIM] {
-        &self.action_scale
-    }
-
-    pub fn action_offset(&self) -> &[f64; UNIT_ACTION_DIM] {
-        &self.action_offset
+    /// The increment map: the exported policy's output scale is its steps.
+    pub fn action_map(&self) -> &ActionMap {
+        &self.map
     }
 
     /// Control steps in a full episode.
@@ -159,13 +166,10 @@ impl PhaseTask {
         }
     }
 
-    /// One unit's command for raw action `raw` (`[UNIT_ACTION_DIM]`).
-    pub fn command(&self, raw: &[f64]) -> UnitCommand {
-        let mut u = [0.0; UNIT_ACTION_DIM];
-        for (k, u) in u.iter_mut().enumerate() {
-            *u = self.action_offset[k] + self.action_scale[k] * raw[k];
-        }
-        UnitCommand::from_action(&u)
+    /// One unit's increment Δ = step ⊙ a for raw action `raw` (`[UNIT_ACTION_DIM]`); the
+    /// pipeline bounds it to ±step.
+    pub fn increment(&self, raw: &[f64]) -> [f64; UNIT_ACTION_DIM] {
+        std::array::from_fn(|k| self.map.step[k] * raw[k])
     }
 
     /// The task's random stream for the world seeded with `env_seed` (goals, sensing noise),
@@ -216,13 +220,18 @@ impl PhaseTask {
             // Replaced below once the first readings are sensed.
             reference: [GraspReference {
                 ee_rest_in_base: nalgebra::Isometry3::identity(),
+                peer_ee_rest_in_base: nalgebra::Isometry3::identity(),
                 peer_base_rest: PlanarPose::default(),
             }; UNITS],
             steps: 0,
             contact_s: 0.0,
             released: false,
+            previous: [UnitCommand::default(); UNITS],
+            pipelines: self.pipelines(scene)?,
+            reports: None,
         };
         episode.sense(self, scene, state, rng, false);
+        episode.previous = episode.sensed.map(|s| anchor_command(&s));
         // The rest grasp is where the arms are now when the payload rests; a lifted start
         // takes it from the grasp solution (where the mission's lift began).
         let rest_q = if self.config.start_lift_m(self.phase) > 0.0 {
@@ -230,13 +239,15 @@ impl PhaseTask {
         } else {
             None
         };
-        for i in 0..UNITS {
-            let mut own = episode.sensed[i];
-            if let Some(q) = rest_q {
-                own.arm.position_rad = q;
+        let mut at_rest = episode.sensed;
+        if let Some(q) = rest_q {
+            for unit in &mut at_rest {
+                unit.arm.position_rad = q;
             }
+        }
+        for i in 0..UNITS {
             episode.reference[i] =
-                GraspReference::capture(&scene.spec, &own, &episode.sensed[1 - i])
+                GraspReference::capture(&scene.spec, &at_rest[i], &at_rest[1 - i])
                     .map_err(|e| SimError::Kinematics(e.to_string()))?;
         }
         Ok(episode)
@@ -244,28 +255,14 @@ impl PhaseTask {
 }
 
 impl PhaseTask {
-    /// The episode of this task's phase that continues `previous` in a deployed mission when
-    /// the phase gate switches to it: the units keep their odometry, sensed readings and rest
-    /// grasp reference; the goals are set as this phase's training episodes set them, from the
-    /// units' own estimates (bases hold at, or travel from, where their odometry says they
-    /// are; h* is `transport.start_height_m` while lifting and transporting, 0 when placing).
-    pub fn continue_from(&self, previous: &Episode, state: &EnvState) -> Episode {
-        let goal_height_m = match self.phase {
-            Phase::Place | Phase::Idle => 0.0,
-            Phase::Lift | Phase::Transport => self.config.transport.start_height_m,
+    /// One action pipeline per unit, each from its own unit's view.
+    fn pipelines(&self, scene: &SceneModel) -> Result<[ActionPipeline; UNITS], SimError> {
+        let model = moonhaul_coord::UnitModel::new(scene.spec.clone());
+        let make = |i: usize| {
+            ActionPipeline::new(model.clone(), &self.sync, self.control_period_s, UNITS, i)
+                .map_err(|e| SimError::Kinematics(e.to_string()))
         };
-        Episode {
-            phase: self.phase,
-            phase_start_step: 0,
-            goal_height_m,
-            place_offset_m: 0.0,
-            start_base: previous.odometry,
-            payload_start: state.payload.pose.translation.vector.xy(),
-            steps: 0,
-            contact_s: 0.0,
-            released: false,
-            ..previous.clone()
-        }
+        Ok([make(0)?, make(1)?])
     }
 }
 
@@ -307,9 +304,49 @@ pub struct Episode {
     steps: u64,
     contact_s: f64,
     released: bool,
+    /// U_{k−1} of each unit.
+    previous: [UnitCommand; UNITS],
+    /// Each unit's action pipeline (its clamp over both units, its hold rule).
+    pipelines: [ActionPipeline; UNITS],
+    /// What each unit's pipeline did at the last step.
+    reports: Option<[PipelineReport; UNITS]>,
 }
 
 impl Episode {
+    /// Both units' commands U_k for increments `deltas` (Δ = step ⊙ a, e.g. from
+    /// [`PhaseTask::increment`] or a policy file's output), through each unit's pipeline —
+    /// the function the onboard tick calls.
+    pub fn commands(
+        &mut self,
+        task: &PhaseTask,
+        deltas: &[[f64; UNIT_ACTION_DIM]; UNITS],
+    ) -> Result<[UnitCommand; UNITS], SimError> {
+        let mut issued = [UnitCommand::default(); UNITS];
+        let mut next = self.previous;
+        let mut reports = [None; UNITS];
+        for (i, pipeline) in self.pipelines.iter_mut().enumerate() {
+            let report = pipeline
+                .step(
+                    &PipelineInput {
+                        sensed: &self.sensed,
+                        previous: &self.previous,
+                        increment: Some(Increment {
+                            map: &task.map,
+                            delta: &deltas[i],
+                        }),
+                    },
+                    None,
+                    &mut issued,
+                )
+                .map_err(|e| SimError::Kinematics(e.to_string()))?;
+            next[i] = issued[i];
+            reports[i] = Some(report);
+        }
+        self.previous = next;
+        self.reports = reports[0].zip(reports[1]).map(|(a, b)| [a, b]);
+        Ok(next)
+    }
+
     /// Time since the episode began, s.
     pub fn time_s(&self, task: &PhaseTask) -> f64 {
         self.steps as f64 * task.control_period_s
@@ -369,23 +406,19 @@ impl Episode {
 
     /// The commanded payload velocity now (v_cmd), world frame.
     pub fn command_velocity_mps(&self, task: &PhaseTask) -> Vector2<f64> {
-        match self.phase {
-            Phase::Transport => {
-                Vector2::new(task.config.profile().speed_at(self.phase_time_s(task)), 0.0)
-            }
-            _ => Vector2::zeros(),
-        }
+        self.goal(task, 0).velocity_mps
     }
 
-    /// Unit `i`'s phase goal in the world frame.
+    /// Unit `i`'s phase goal in the world frame (core's one definition, with this episode's
+    /// drawn h* and travel).
     pub fn goal(&self, task: &PhaseTask, i: usize) -> PhaseGoal {
-        let start = &self.start_base[i];
-        let total = self.travel_m(task);
-        PhaseGoal {
-            height_m: self.goal_height_m,
-            base_goal_m: Vector2::new(start.x_m + total, start.y_m),
-            velocity_mps: self.command_velocity_mps(task),
-        }
+        task.config.phase_goal(
+            self.phase,
+            self.goal_height_m,
+            &self.start_base[i],
+            self.travel_m(task),
+            self.phase_time_s(task),
+        )
     }
 
     /// Unit `i`'s rest-grasp reference (what its daemon records when the grasp closes).
@@ -537,8 +570,13 @@ impl Episode {
                 self.released = true;
             }
         }
+        let tracking_lost = self
+            .reports
+            .is_some_and(|r| r.iter().any(|r| r.tracking_lost));
         let terminated = if state.grasp_broken {
             Some(Termination::GraspBroken)
+        } else if tracking_lost {
+            Some(Termination::TrackingLost)
         } else if state.payload.tilt_rad > task.config.safety.max_tilt_deg.to_radians() {
             Some(Termination::Tilted)
         } else {

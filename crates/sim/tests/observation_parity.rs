@@ -16,7 +16,13 @@ fn sim_and_onboard_observations_agree_bit_for_bit() {
     let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
     // What a daemon loads: the unit URDF, on its own.
     let spec = UnitSpec::from_file(&scene.config.unit_urdf()).unwrap();
-    let task = PhaseTask::new(Phase::Transport, TaskConfig::shipped().unwrap(), &scene).unwrap();
+    let task = PhaseTask::new(
+        Phase::Transport,
+        TaskConfig::shipped().unwrap(),
+        moonhaul_coord::SyncConfig::shipped().unwrap(),
+        &scene,
+    )
+    .unwrap();
     let mut batch = BatchEnv::new(scene.clone(), 1, 7, task.env_options(true, None), 1).unwrap();
     let mut rng = PhaseTask::rng(7);
     let mut episode = task
@@ -27,7 +33,8 @@ fn sim_and_onboard_observations_agree_bit_for_bit() {
     for tick in 0..40u64 {
         batch
             .for_each_with(&mut slots, |scene, env, state, (episode, rng)| {
-                let commands = [task.command(&forward), task.command(&forward)];
+                let delta = task.increment(&forward);
+                let commands = episode.commands(&task, &[delta, delta])?;
                 env.step(scene, &commands);
                 env.state_into(scene, state);
                 episode.advance(&task, scene, env, state, rng);

@@ -1,5 +1,15 @@
 //! World building: the rapier world of one episode (integration parameters, ground, the two
 //! unit multibodies, the payload and its collider), settled and grasped at reset.
+//!
+//! **Settling.** Everything is spawned a little above the ground and settles for [`SETTLE_S`],
+//! the arm drives holding their start joints, before the grasps close (a grasp made in mid-air
+//! would take the settling transient as a spike). A ground start then begins: the payload
+//! rests on the ground, the arms carry only themselves. A lifted start (transport, place) has
+//! held the payload still in the air (kinematic, as a fixture would) while the unloaded arms
+//! settled; once the grasps close it turns dynamic and the world settles for another
+//! [`LOADED_SETTLE_S`] with the drives holding the start joints, so the episode begins from a
+//! loaded grasp at rest, as after a real lift, not from the transient of the payload dropping
+//! into the arms.
 
 use moonhaul_core::state::{UnitCommand, ARM_JOINTS, WHEEL_JOINTS};
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
@@ -7,7 +17,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::*;
 
-use super::actuation::set_motors;
+use super::actuation::ArmDrive;
 use super::ground::{ground_height, terrain_collider};
 use super::{Env, EnvOptions, GraspState, SceneModel, UNITS};
 use crate::convert::{to_pose, to_vector};
@@ -15,8 +25,14 @@ use crate::model::Shape;
 use crate::randomization::Randomization;
 use crate::SimError;
 
-/// Time the world settles at reset before the grasps close, s (not counted in episode time).
-const SETTLE_S: f64 = 0.25;
+/// Time the world settles at reset before the grasps close, s (not counted in episode time):
+/// the bases tip onto a caster (15 mm clearance, 3.4°) within about 0.4 s of being spawned
+/// level; a grasp closed before that would hang a still-tipping base from the payload.
+const SETTLE_S: f64 = 0.5;
+/// Time a lifted start settles with the payload in the arms, s (not counted in episode time):
+/// the arm drives' integral terms take up the load within about half of it (with the shipped
+/// `[motors]`), the rest lets the payload come to rest.
+const LOADED_SETTLE_S: f64 = 1.0;
 /// Clearance at which bodies are spawned above the ground, m: they settle in the first steps.
 const SPAWN_CLEARANCE_M: f64 = 0.002;
 
@@ -58,10 +74,19 @@ impl Env {
         w.colliders.clone_from(&t.colliders);
         w.impulse_joints.clone_from(&t.impulse_joints);
         w.multibody_joints.clone_from(&t.multibody_joints);
+        self.drives = t.drives;
         self.grasps = t.grasps;
         self.grasp_state = t.grasp_state;
         self.grasp_broken = false;
         self.pipeline_steps = 0;
+    }
+
+    /// Runs the drives on `hold` without noise for `seconds` (rounded to control periods).
+    fn settle(&mut self, scene: &SceneModel, hold: &[UnitCommand; UNITS], seconds: f64) {
+        let noiseless = [([0.0; WHEEL_JOINTS], [0.0; ARM_JOINTS]); UNITS];
+        for _ in 0..(seconds * scene.config.control_hz).round() as usize {
+            self.control_step(scene, hold, &noiseless);
+        }
     }
 
     fn build(
@@ -169,7 +194,12 @@ impl Env {
                 .pose(to_pose(&Isometry3::translation(
                     0.0,
                     0.0,
-                    under + he.z + SPAWN_CLEARANCE_M + options.start_lift_m,
+                    // Where the arms' start joints hold it: the lift path ends at the arm's
+                    // reach, which for some payloads is below the asked-for lift.
+                    under
+                        + he.z
+                        + SPAWN_CLEARANCE_M
+                        + options.start_lift_m.min(payload_model.max_lift_m()),
                 )))
                 .additional_mass_properties(MassProperties::with_inertia_matrix(
                     to_vector(&inertia.com_m),
@@ -194,6 +224,7 @@ impl Env {
             grasps: [None; UNITS],
             grasp_state: [GraspState::default(); UNITS],
             grasp_broken: false,
+            drives: start_q.map(|q| ArmDrive::holding(&q)),
             payload_kind: draw.payload,
             draw,
             noise,
@@ -201,32 +232,21 @@ impl Env {
             pipeline_steps: 0,
             template: Box::default(),
         };
-        // Everything drops the spawn clearance and settles on the terrain, arms holding their
-        // start positions, before the grasps close: a grasp made in mid-air would take the
-        // settling transient as a spike and could break at the first step.
-        for (unit, q) in env.units.iter().zip(&start_q) {
-            let hold = UnitCommand {
-                arm_position_rad: *q,
-                ..UnitCommand::default()
-            };
-            set_motors(
-                &mut env.world,
-                scene,
-                unit,
-                &hold,
-                &[0.0; WHEEL_JOINTS],
-                &[0.0; ARM_JOINTS],
-            );
-        }
-        for _ in 0..(SETTLE_S * config.physics.collision_hz).round() as usize {
-            env.world.step();
-        }
+        // Everything drops the spawn clearance and settles on the terrain (module docs).
+        let hold = start_q.map(|q| UnitCommand {
+            arm_position_rad: q,
+            ..UnitCommand::default()
+        });
+        env.settle(scene, &hold, SETTLE_S);
         env.attach_grasps(scene);
         if lifted {
             if let Some(rb) = env.world.bodies.get_mut(env.payload) {
                 rb.set_body_type(RigidBodyType::Dynamic, true);
             }
+            env.settle(scene, &hold, LOADED_SETTLE_S);
         }
+        // The episode starts now.
+        env.pipeline_steps = 0;
         env.template = Box::new(Template::of(&env));
         Ok(env)
     }
@@ -244,6 +264,7 @@ pub(super) struct Template {
     colliders: ColliderSet,
     impulse_joints: ImpulseJointSet,
     multibody_joints: MultibodyJointSet,
+    drives: [ArmDrive; UNITS],
     grasps: [Option<ImpulseJointHandle>; UNITS],
     grasp_state: [GraspState; UNITS],
 }
@@ -259,6 +280,7 @@ impl Template {
             colliders: w.colliders.clone(),
             impulse_joints: w.impulse_joints.clone(),
             multibody_joints: w.multibody_joints.clone(),
+            drives: env.drives,
             grasps: env.grasps,
             grasp_state: env.grasp_state,
         }
@@ -353,7 +375,8 @@ fn insert_unit(
             )))
             .motor_max_force(JointAxis::AngX, j.limits.effort as f32)
             .build();
-        if scene.wheel_bodies.contains(&b) {
+        // Every drive is force-based: gains in N·m per rad (arms) or per rad/s (wheels).
+        if scene.wheel_bodies.contains(&b) || scene.arm_bodies.contains(&b) {
             data.set_motor_model(JointAxis::AngX, MotorModel::ForceBased);
         }
         if j.limits.lower.is_finite() && j.limits.upper.is_finite() {
