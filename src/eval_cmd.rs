@@ -14,12 +14,17 @@ use moonhaul_sim::task::{PhaseTask, TaskConfig};
 use moonhaul_sim::{PayloadKind, SceneModel, SimConfig};
 use serde_json::{json, Map, Value};
 
+use crate::eval::deployed;
 use crate::eval::episode::{read_csv, write_csv, EpisodeRow};
 use crate::eval::metrics::{self, lift_summary, place_summary, transport_summary};
 use crate::eval::plot;
 use crate::eval::rollout::{self, Case, Episodes, ScriptedSegments};
 use crate::payload_arg::{self, PayloadArg};
+use moonhaul_core::action::ActionMap;
 use moonhaul_core::atomic_file;
+use moonhaul_core::policy::Policy;
+use moonhaul_deploy::tick::{Controller, PhasePolicies};
+use moonhaul_deploy::unit_config::UnitConfig;
 
 #[derive(clap::Args)]
 pub struct EvalArgs {
@@ -59,6 +64,9 @@ pub struct EvalArgs {
     gate: PathBuf,
     #[arg(long, default_value = "configs/sync.toml")]
     sync: PathBuf,
+    /// The unit config whose team settings (peer staleness) the deployed stack's units use.
+    #[arg(long, default_value = "configs/unit.toml")]
+    unit: PathBuf,
     /// Write every episode's rows to DIR/<payload>/<case>/<episode>.csv (scripted ones under
     /// DIR/scripted/).
     #[arg(long, value_name = "DIR")]
@@ -212,6 +220,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     }
     let sim = SimConfig::load(&args.sim)?;
     let tasks = TaskConfig::load(&args.tasks)?;
+    let sync = SyncConfig::from_file(&args.sync)?;
     let plan = MissionPlan::load(&args.mission)?;
     let mut scene = SceneModel::new(sim).context("building the scene")?;
     // Every payload file is loaded and grasp-solved before any episode runs, so a bad one
@@ -242,18 +251,41 @@ pub fn run(args: EvalArgs) -> Result<()> {
             continue;
         }
         let path = args.policies.join(format!("{}.safetensors", phase.name()));
-        let task = PhaseTask::new(phase, tasks, &scene)?;
-        policies.push((phase, task, rollout::load_policy(&path, phase)?));
+        let task = PhaseTask::new(phase, tasks, sync, &scene)?;
+        let policy = rollout::load_policy(&path, phase)?;
+        // The episodes bound increments by the tasks' map; a policy trained with other steps
+        // would be evaluated on a map it was not trained on.
+        let map = ActionMap::of_policy(&policy)?;
+        // The file stores the steps as f32.
+        let same = |a: f64, b: f64| a as f32 == b as f32;
+        if !map
+            .step
+            .iter()
+            .zip(&task.action_map().step)
+            .all(|(a, b)| same(*a, *b))
+        {
+            bail!(
+                "policy {} was trained with action steps {:?}; {} [action] gives {:?}",
+                path.display(),
+                map.step,
+                args.tasks.display(),
+                task.action_map().step
+            );
+        }
+        policies.push((phase, task, policy));
     }
 
     let every_case = Case::ALL.iter().all(|c| cases.contains(c));
     let stack = if args.no_deployed || !every_case {
         None
     } else {
-        Some((
-            GateConfig::from_file(&args.gate)?,
-            SyncConfig::from_file(&args.sync)?,
-        ))
+        let unit = UnitConfig::from_file(&args.unit)?;
+        Some(deployed::Stack {
+            team: unit.team_settings(),
+            gate: GateConfig::from_file(&args.gate)?,
+            sync,
+            tasks,
+        })
     };
     let mut report = Map::new();
     let mut table = String::new();
@@ -287,30 +319,57 @@ pub fn run(args: EvalArgs) -> Result<()> {
         } else {
             Some(scripted_cases(&scene, &plan, payload, &cases, &args)?)
         };
-        let deployed = match &stack {
-            Some((gate, sync)) => {
-                let stack = rollout::Stack {
-                    gate,
-                    sync,
-                    phases: &policies,
+        let (learned_deployed, scripted_deployed) = match &stack {
+            Some(stack) => {
+                let learned_policies = || -> Result<Controller> {
+                    let find = |phase: Phase| -> Result<Policy> {
+                        policies
+                            .iter()
+                            .find(|(p, ..)| *p == phase)
+                            .map(|(.., policy)| policy.clone())
+                            .with_context(|| format!("the deployed stack needs a {phase} policy"))
+                    };
+                    Ok(Controller::Learned(Box::new(PhasePolicies {
+                        lift: find(Phase::Lift)?,
+                        transport: find(Phase::Transport)?,
+                        place: find(Phase::Place)?,
+                    })))
                 };
-                Some(deployed_cases(&scene, &stack, payload, &args)?)
+                let learned = deployed_cases(&scene, stack, &learned_policies, payload, &args, "")?;
+                let scripted = if args.no_scripted {
+                    None
+                } else {
+                    let controller = || Ok(Controller::Scripted(plan));
+                    Some(deployed_cases(
+                        &scene,
+                        stack,
+                        &controller,
+                        payload,
+                        &args,
+                        "scripted",
+                    )?)
+                };
+                (Some(learned), scripted)
             }
-            None => None,
+            None => (None, None),
         };
         let mut entry = payload_json(args.episodes, &learned);
         if let Value::Object(map) = &mut entry {
             if let Some(scripted) = &scripted {
-                map.insert("scripted".into(), payload_json(args.episodes, scripted));
-            }
-            if let Some((cases, clamp)) = &deployed {
-                let mut d = payload_json(args.episodes, cases);
-                if let Value::Object(d) = &mut d {
-                    d.insert("clamp".into(), clamp.clone());
+                let mut s = payload_json(args.episodes, scripted);
+                if let (Value::Object(s), Some(d)) = (&mut s, &scripted_deployed) {
+                    s.insert("deployed".into(), deployed_json(args.episodes, d));
                 }
-                map.insert("deployed".into(), d);
+                map.insert("scripted".into(), s);
+            }
+            if let Some(d) = &learned_deployed {
+                map.insert(
+                    "learned".into(),
+                    json!({ "deployed": deployed_json(args.episodes, d) }),
+                );
             }
         }
+        let deployed = learned_deployed.map(|d| d.cases);
         write_table(
             &mut table,
             name,
@@ -318,7 +377,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             randomize,
             &learned,
             scripted.as_deref(),
-            deployed.as_ref().map(|(c, _)| c.as_slice()),
+            deployed.as_deref(),
         )?;
         report.insert(name.clone(), entry);
     }
@@ -369,16 +428,39 @@ fn write_figures(out: &Path, policies: &Path, rollouts: &[(Phase, Vec<EpisodeRow
     Ok(())
 }
 
-/// The deployed stack: whole missions (lift to 0.3 m, transport, place) with the gate and the
-/// clamp in the loop; its segments as the cases, and what the clamp did.
+/// One controller's deployed missions: their segments as the cases, and what the pipeline did.
+struct DeployedCases {
+    cases: Vec<(Case, Value)>,
+    clamp: Value,
+    max_grasp_force_n: f64,
+    mean_grasp_force_n: f64,
+}
+
+/// The `deployed` object of one controller.
+fn deployed_json(episodes: usize, d: &DeployedCases) -> Value {
+    let mut v = payload_json(episodes, &d.cases);
+    if let Value::Object(map) = &mut v {
+        map.insert("clamp".into(), d.clamp.clone());
+        map.insert("max_grasp_force_n".into(), json!(d.max_grasp_force_n));
+        map.insert("mean_grasp_force_n".into(), json!(d.mean_grasp_force_n));
+    }
+    v
+}
+
+/// The deployed stack: whole missions (lift to `transport.start_height_m`, transport, place)
+/// flown by each unit's onboard tick with `controller`; its phase segments as the cases, and
+/// what the pipeline did. `label` prefixes the CSV folder (`scripted`, or none for learned).
 fn deployed_cases(
     scene: &SceneModel,
-    stack: &rollout::Stack,
+    stack: &deployed::Stack,
+    controller: &(dyn Fn() -> Result<Controller> + Sync),
     payload: PayloadKind,
     args: &EvalArgs,
-) -> Result<(Vec<(Case, Value)>, Value)> {
-    let missions = rollout::deployed(scene, stack, args.episodes_of(payload))
-        .with_context(|| format!("deployed {}", scene.payload_name(payload)))?;
+    label: &str,
+) -> Result<DeployedCases> {
+    let name = scene.payload_name(payload);
+    let missions = deployed::missions(scene, stack, controller, args.episodes_of(payload))
+        .with_context(|| format!("deployed {label} {name}"))?;
     let mut cases = Vec::new();
     for case in [Case::ALL[0], Case::ALL[3], Case::ALL[4]] {
         let episodes: Vec<Vec<EpisodeRow>> = missions
@@ -391,8 +473,9 @@ fn deployed_cases(
             .collect();
         if let Some(out) = &args.out {
             write_episodes(
-                &out.join("deployed")
-                    .join(scene.payload_name(payload))
+                &out.join(label)
+                    .join(&name)
+                    .join("deployed")
                     .join(case.name()),
                 &episodes,
             )?;
@@ -415,14 +498,27 @@ fn deployed_cases(
         }
         cases.push((case, summary));
     }
+    let sum = |f: fn(&deployed::DeployedMission) -> f64| missions.iter().map(f).sum::<f64>();
+    let ticks = sum(|m| m.policy_ticks as f64).max(1.0);
+    let loaded = sum(|m| m.loaded_ticks as f64).max(1.0);
     let n = missions.len().max(1) as f64;
     let clamp = json!({
-        "mean_t_max": missions.iter().map(|m| m.mean_t_max).sum::<f64>() / n,
-        "clamped_tick_fraction": missions.iter().map(|m| m.clamped_ticks as f64 / m.ticks.max(1) as f64).sum::<f64>() / n,
-        "hold_tick_fraction": missions.iter().map(|m| m.holds as f64 / m.ticks.max(1) as f64).sum::<f64>() / n,
+        "mean_t_max": sum(|m| m.t_max_sum) / ticks,
+        "clamped_tick_fraction": sum(|m| m.clamped_ticks as f64) / ticks,
+        "hold_tick_fraction": sum(|m| m.hold_ticks as f64) / ticks,
+        "no_step_fraction": sum(|m| m.no_step_ticks as f64) / ticks,
+        "mean_tracking_d": sum(|m| m.tracking_d_sum) / loaded,
         "completed_rate": missions.iter().filter(|m| m.completed).count() as f64 / n,
     });
-    Ok((cases, clamp))
+    Ok(DeployedCases {
+        cases,
+        clamp,
+        max_grasp_force_n: missions
+            .iter()
+            .map(|m| m.max_grasp_force_n)
+            .fold(0.0, f64::max),
+        mean_grasp_force_n: sum(|m| m.mean_grasp_force_n) / n,
+    })
 }
 
 /// The scripted baseline: one mission per lift height, its segments as the cases.

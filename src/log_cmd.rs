@@ -226,6 +226,8 @@ struct Sample {
     t_s: f64,
     height_m: f64,
     phase: Phase,
+    /// Every grasp is open: the payload was let go.
+    released: bool,
 }
 
 /// The samples of `frames`: time from the first frame, the reported phase (unit 0's, else any
@@ -263,6 +265,7 @@ fn samples(frames: &[WorldFrame]) -> Result<Vec<Sample>> {
             t_s: (f.stamp_us - first.stamp_us) as f64 * 1e-6,
             height_m: f.payload_height_m,
             phase,
+            released: !f.grasp_closed.iter().any(|closed| *closed),
         });
     }
     Ok(out)
@@ -336,9 +339,16 @@ fn trial_metrics(samples: &[Sample]) -> Result<TrialMetrics> {
     let (lift_start, lift_end) = span(0).unwrap_or((samples[lift_at].t_s, end_s));
     let transport = span(1);
     let place = span(2);
-    let completed = starts[3].is_some();
+    // Back in Idle after Place is a completion only if the payload was let go: a safety stop
+    // during the placement also ends in Idle, with the grasps still closed.
+    let released = samples.last().is_some_and(|s| s.released);
+    let completed = starts[3].is_some() && released;
     let incomplete = if completed {
         None
+    } else if let (Some(at), false) = (starts[3], released) {
+        Some(format!(
+            "stopped during place at {at:.2} s (phase went to idle, grasps still closed)"
+        ))
     } else if let Some((from, to, at)) = broke {
         Some(if to == Phase::Idle {
             format!(
@@ -387,7 +397,7 @@ fn trial_metrics(samples: &[Sample]) -> Result<TrialMetrics> {
         steady_height_mm: steady_m.map(|h| h * 1e3),
         time_to_95_s,
         settled_height_mm: settled_m * 1e3,
-        settled_after_idle: completed,
+        settled_after_idle: starts[3].is_some(),
         lift_s: lift_end - lift_start,
         transport_s: transport.map(|(s, e)| e - s),
         place_s: place.map(|(s, e)| e - s),
@@ -921,10 +931,16 @@ mod tests {
                     .iter()
                     .find(|(until, _)| t < *until - 1e-9)
                     .map_or(segments.last().unwrap().1, |s| s.1);
+                // The grasps open once Idle follows Place.
+                let released = phase == Phase::Idle
+                    && segments
+                        .iter()
+                        .any(|(until, p)| *p == Phase::Place && *until <= t + 1e-9);
                 Sample {
                     t_s: t,
                     height_m: height(t),
                     phase,
+                    released,
                 }
             })
             .collect()
@@ -986,6 +1002,21 @@ mod tests {
         let height = |t: f64| if t < 42.0 { 0.1 } else { 0.3 };
         let m = trial_metrics(&trial(&MISSION, height)).unwrap();
         assert!(close(m.steady_height_mm.unwrap(), 300.0, 1e-9), "{m:?}");
+    }
+
+    #[test]
+    fn a_stop_during_place_with_the_grasps_closed_is_not_completed() {
+        let mut samples = trial(&MISSION, |_| 0.2);
+        for s in &mut samples {
+            s.released = false;
+        }
+        let m = trial_metrics(&samples).unwrap();
+        assert!(!m.completed, "{m:?}");
+        let why = m.incomplete.as_deref().unwrap();
+        assert!(
+            why.contains("stopped during place") && why.contains("closed"),
+            "{why}"
+        );
     }
 
     #[test]

@@ -1,6 +1,7 @@
-//! `moonhaul eval` end to end on hand-built policies that hold the phase's starting grasp:
-//! every case runs, the CSVs land where documented, the metrics recomputed from the CSVs equal
-//! the reported ones, and a policy of another observation layout or phase is refused by name.
+//! `moonhaul eval` end to end on hand-built policies whose increment is zero (they hold): every
+//! case runs, the CSVs land where documented, the metrics recomputed from the CSVs equal the
+//! reported ones, and a policy of another observation layout, action map or phase is refused by
+//! name.
 
 mod common;
 
@@ -8,6 +9,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use common::{fails_naming, moonhaul, stdout};
+use moonhaul_core::action::ActionMap;
 use moonhaul_core::observation::{
     layout_fields, ACTOR_OBS_DIM, LAYOUT_FIELDS_KEY, LAYOUT_VERSION_KEY, OBS_LAYOUT_VERSION,
 };
@@ -18,12 +20,19 @@ use moonhaul_core::state::{Phase, UNIT_ACTION_DIM};
 use moonhaul_sim::task::{PhaseTask, TaskConfig};
 use moonhaul_sim::{SceneModel, SimConfig};
 
-/// A zero-weight policy: it always commands its action map's offset, the phase's start grasp.
-fn hold_policy(task: &PhaseTask, layout: bool) -> Policy {
+/// A zero-weight policy: its increment is always zero, so it holds the command it starts from
+/// (the anchor on the sensed joints). `layout`/`action_map`: whether the file records this
+/// build's observation layout and action map.
+fn hold_policy(task: &PhaseTask, layout: bool, action_map: bool) -> Policy {
     let mut extra = BTreeMap::new();
     if layout {
         extra.insert(LAYOUT_VERSION_KEY.into(), OBS_LAYOUT_VERSION.to_string());
         extra.insert(LAYOUT_FIELDS_KEY.into(), layout_fields());
+    }
+    if action_map {
+        for (k, v) in ActionMap::metadata() {
+            extra.insert(k.into(), v);
+        }
     }
     let metadata = PolicyMetadata {
         phase: task.phase,
@@ -48,18 +57,19 @@ fn hold_policy(task: &PhaseTask, layout: bool) -> Policy {
         std: vector(&[1.0; ACTOR_OBS_DIM]),
     };
     let action = ActionAffine {
-        scale: vector(task.action_scale()),
-        offset: vector(task.action_offset()),
+        scale: vector(&task.action_map().step),
+        offset: vector(&[0.0; UNIT_ACTION_DIM]),
     };
     Policy::new(metadata, vec![layer], norm, action).unwrap()
 }
 
-fn write_policies(dir: &Path, layout: bool) {
+fn write_policies(dir: &Path, layout: bool, action_map: bool) {
     let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
     let tasks = TaskConfig::shipped().unwrap();
+    let sync = moonhaul_coord::SyncConfig::shipped().unwrap();
     for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
-        let task = PhaseTask::new(phase, tasks, &scene).unwrap();
-        hold_policy(&task, layout)
+        let task = PhaseTask::new(phase, tasks, sync, &scene).unwrap();
+        hold_policy(&task, layout, action_map)
             .write_file(dir.join(format!("{}.safetensors", phase.name())))
             .unwrap();
     }
@@ -70,7 +80,7 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
     let dir = tempfile::tempdir().unwrap();
     let policies = dir.path().join("policies");
     std::fs::create_dir(&policies).unwrap();
-    write_policies(&policies, true);
+    write_policies(&policies, true, true);
     let out = dir.path().join("out");
     let (p, o) = (policies.to_str().unwrap(), out.to_str().unwrap());
     let args = [
@@ -118,23 +128,29 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
         "box",
     ])))
     .unwrap();
-    // The deployed stack ran too (every case was asked for): a hold policy never lifts, so its
-    // missions stay in lift.
-    let deployed = reported["box"]
+    // The deployed stack ran too (every case was asked for), through the onboard tick: a hold
+    // policy never lifts, so its missions stay in lift, holding their commands (every step
+    // admissible, the drives on them).
+    let learned = reported["box"]
         .as_object_mut()
         .unwrap()
-        .remove("deployed")
+        .remove("learned")
         .unwrap();
+    let deployed = &learned["deployed"];
     assert_eq!(deployed["transport"]["reached_rate"], 0.0);
-    assert!(deployed["clamp"]["mean_t_max"].as_f64().unwrap() <= 1.0);
-    assert!(out.join("deployed/box/lift-0.3/000.csv").is_file());
+    assert_eq!(deployed["clamp"]["completed_rate"], 0.0);
+    assert_eq!(deployed["clamp"]["no_step_fraction"], 0.0);
+    assert!(deployed["clamp"]["mean_t_max"].as_f64().unwrap() > 0.99);
+    assert!(deployed["clamp"]["mean_tracking_d"].as_f64().unwrap() < 0.2);
+    assert!(deployed["max_grasp_force_n"].as_f64().unwrap() > 0.0);
+    assert!(out.join("box/deployed/lift-0.3/000.csv").is_file());
     assert_eq!(recomputed, reported);
 }
 
 #[test]
-fn policies_of_another_layout_or_phase_are_refused_by_name() {
+fn policies_of_another_layout_action_map_or_phase_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
-    write_policies(dir.path(), false);
+    write_policies(dir.path(), false, true);
     let p = dir.path().to_str().unwrap();
     let err = fails_naming(
         &[
@@ -149,7 +165,25 @@ fn policies_of_another_layout_or_phase_are_refused_by_name() {
         "lift.safetensors",
     );
     assert!(err.contains("observation layout"), "{err}");
-    write_policies(dir.path(), true);
+    // A policy of absolute targets (the action map before the increment) is refused too.
+    write_policies(dir.path(), true, false);
+    let err = fails_naming(
+        &[
+            "eval",
+            "--policies",
+            p,
+            "--episodes",
+            "1",
+            "--payload",
+            "box",
+        ],
+        "lift.safetensors",
+    );
+    assert!(
+        err.contains("action map") && err.contains("retrain"),
+        "{err}"
+    );
+    write_policies(dir.path(), true, true);
     std::fs::copy(
         dir.path().join("lift.safetensors"),
         dir.path().join("place.safetensors"),

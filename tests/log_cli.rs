@@ -10,7 +10,8 @@ use moonhaul_deploy::mission_log::WorldLog;
 use moonhaul_deploy::record::WorldFrame;
 
 /// Frames every 20 ms: idle 0–1 s, lift 1–11 s (a ramp to `steady_m` over `ramp_s`), transport
-/// 11–31 s at `steady_m`, place 31–36 s (down to `settled_m` over 4 s), idle 36–38 s.
+/// 11–31 s at `steady_m`, place 31–36 s (down to `settled_m` over 4 s), idle 36–38 s with the
+/// grasps open.
 fn write_trial(dir: &Path, steady_m: f64, ramp_s: f64, settled_m: f64) {
     std::fs::create_dir_all(dir).unwrap();
     let mut log = WorldLog::create(&dir.join("world.mcap"), [0.5, 0.4, 0.3], 2).unwrap();
@@ -39,7 +40,8 @@ fn write_trial(dir: &Path, steady_m: f64, ramp_s: f64, settled_m: f64) {
             base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
             // Unit 0 is silent on odd ticks: the phase falls back to unit 1's.
             unit_phase: vec![(k % 2 == 0).then_some(phase), Some(phase)],
-            grasp_closed: vec![true; 2],
+            // The grippers open once the placement ends.
+            grasp_closed: vec![k < 1800; 2],
         })
         .unwrap();
     }
@@ -157,7 +159,8 @@ fn summary_flags_an_incomplete_trial() {
             base_position_m: vec![[0.0; 3]; 2],
             base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
             unit_phase: vec![Some(phase); 2],
-            grasp_closed: vec![true; 2],
+            // The grippers open once the placement ends.
+            grasp_closed: vec![k < 1800; 2],
         })
         .unwrap();
     }
@@ -209,7 +212,8 @@ fn summary_errors_name_the_file_at_fault() {
             base_position_m: vec![[0.0; 3]; 2],
             base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
             unit_phase: vec![Some(Phase::Idle); 2],
-            grasp_closed: vec![true; 2],
+            // The grippers open once the placement ends.
+            grasp_closed: vec![k < 1800; 2],
         })
         .unwrap();
     }

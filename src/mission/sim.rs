@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
+use moonhaul_deploy::daemon::ControllerKind;
 use moonhaul_deploy::network::free_loopback_port;
 
 use super::operator::{self, Console};
@@ -50,6 +51,10 @@ pub struct SimArgs {
     /// fault drills.
     #[arg(long, value_name = "I=ARG")]
     pub unit_arg: Vec<String>,
+    /// What each unit flies: the learned phase policies or the scripted IK controller, through
+    /// the same gate, pipeline and clamp.
+    #[arg(long, value_enum, default_value_t = ControllerKind::Learned)]
+    pub controller: ControllerKind,
 }
 
 /// The daemon binary: beside this executable (cargo builds both into one folder), or
@@ -264,6 +269,13 @@ async fn trial_run(
         cmd.arg("--config")
             .arg(&args.unit_config)
             .args(["--hal", "sim"])
+            .args([
+                "--controller",
+                match args.controller {
+                    ControllerKind::Learned => "learned",
+                    ControllerKind::Scripted => "scripted",
+                },
+            ])
             .arg("--keys")
             .arg(keys)
             .args(["--unit-index", &i.to_string()])

@@ -232,10 +232,12 @@ pub async fn run(args: WorldArgs) -> Result<()> {
         // Step with every unit's command; a gone unit's drives hold.
         let mut step = [UnitCommand::default(); UNITS];
         for (i, link) in links.iter().enumerate() {
-            let hold = moonhaul_coord::clamp::hold_command(&state.units[i].state);
+            // Quick-stopped drives: wheels stopped, arm at its last command (as drives hold
+            // their last setpoint when the master falls silent), or where it is if none came.
             step[i] = match link.command {
                 Some(c) if !link.gone => c.command,
-                _ => hold,
+                Some(c) => moonhaul_coord::clamp::hold_command(&c.command),
+                None => moonhaul_coord::clamp::anchor_command(&state.units[i].state),
             };
             if link.command.is_some_and(|c| c.grasp_open) && state.units[i].grasp.attached {
                 env.release_grasp(i);
@@ -280,7 +282,7 @@ pub async fn run(args: WorldArgs) -> Result<()> {
 
 /// What unit `i`'s encoders and wrist-force estimate report: the truth through the training's
 /// encoder model (`encoder_reading`, the `[sensing]` of configs/tasks.toml).
-fn sense(
+pub fn sense(
     state: &EnvState,
     i: usize,
     tick: u64,

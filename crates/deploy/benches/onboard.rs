@@ -22,7 +22,7 @@ use moonhaul_core::state::PlanarPose;
 use moonhaul_deploy::daemon::{load_policies, mock_hardware, wall_us};
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::TickRecord;
-use moonhaul_deploy::tick::{Onboard, OnboardSettings};
+use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
 use moonhaul_deploy::unit_config::UnitConfig;
 use moonhaul_hal::unit::{MockUnit, UnitHardware, UnitReading};
 use rand::Rng;
@@ -66,7 +66,9 @@ fn unit(i: usize, keys: &KeyFile, boot_us: u64) -> Unit {
     hw.activate().unwrap();
     let onboard = Onboard::new(
         onboard_settings,
-        load_policies(&repo_file("assets/policies")).unwrap(),
+        Controller::Learned(Box::new(
+            load_policies(&repo_file("assets/policies")).unwrap(),
+        )),
         boot_us,
     )
     .unwrap();

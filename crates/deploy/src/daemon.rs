@@ -15,7 +15,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
-use moonhaul_coord::clamp::hold_command;
+use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::message::{FaultKind, Sender};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
 use moonhaul_core::observation::{check_layout, ACTOR_OBS_DIM};
@@ -34,8 +34,9 @@ use crate::mission_log::UnitLog;
 use crate::network::{self, Keys};
 use crate::record::TickRecord;
 use crate::sim_link::{self, SimHardware, SimSensed};
-use crate::tick::{Onboard, OnboardSettings, PhasePolicies};
+use crate::tick::{Controller, Onboard, OnboardSettings, PhasePolicies};
 use crate::unit_config::UnitConfig;
+use moonhaul_core::scripted::MissionPlan;
 
 /// Which hardware backend the daemon drives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -100,6 +101,14 @@ impl std::str::FromStr for Injection {
     }
 }
 
+/// Which controller a unit flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ControllerKind {
+    Learned,
+    Scripted,
+}
+
 /// `moonhaul-unit`'s command line.
 #[derive(Debug, clap::Parser)]
 #[command(
@@ -114,6 +123,10 @@ pub struct DaemonArgs {
     /// Hardware backend.
     #[arg(long, value_enum)]
     pub hal: HalKind,
+    /// What drives the increments: the learned phase policies (the config's `policies`) or
+    /// the scripted IK controller (the config's `mission` plan), through the same pipeline.
+    #[arg(long, value_enum, default_value_t = ControllerKind::Learned)]
+    pub controller: ControllerKind,
     /// The team's key file (`moonhaul keys generate`); kept outside the repository's configs.
     #[arg(long, value_name = "FILE")]
     pub keys: PathBuf,
@@ -171,7 +184,7 @@ pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
 }
 
 /// Loads a phase policy and checks it is one a unit runs for `phase`: its phase, its
-/// observation layout and its sizes.
+/// observation layout, its action map (the increment, this build's version) and its sizes.
 pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
     let policy =
         Policy::from_file(path).with_context(|| format!("loading policy {}", path.display()))?;
@@ -185,6 +198,8 @@ pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
         );
     }
     check_layout(&meta.extra).with_context(|| format!("policy {}", path.display()))?;
+    moonhaul_core::action::ActionMap::of_policy(&policy)
+        .with_context(|| format!("policy {}", path.display()))?;
     if meta.obs_dim != ACTOR_OBS_DIM || meta.action_dim != UNIT_ACTION_DIM {
         bail!(
             "policy {} maps {} observations to {} actions; a unit needs {ACTOR_OBS_DIM} → \
@@ -325,7 +340,10 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let gate = GateConfig::from_file(&config.gate)?;
     let sync = SyncConfig::from_file(&config.sync)?;
     let tasks = TaskConfig::load(&config.tasks)?;
-    let policies = load_policies(&config.policies)?;
+    let controller = match args.controller {
+        ControllerKind::Learned => Controller::Learned(Box::new(load_policies(&config.policies)?)),
+        ControllerKind::Scripted => Controller::Scripted(MissionPlan::load(&config.mission)?),
+    };
     let period = Duration::from_micros(settings.control_period_us);
     let mut hardware = match args.hal {
         HalKind::Mock => Hardware::Mock(Box::new(mock_hardware(&config, &spec, period)?)),
@@ -385,7 +403,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             tasks,
             start_pose: config.start_pose,
         },
-        policies,
+        controller,
         boot_us,
     )?;
     info!(unit, hal = ?args.hal, team = %settings.team, "unit daemon up");
@@ -533,12 +551,15 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         reason = stop_reason,
         "stopping: holding and flushing the log"
     );
-    // The hold: arm at its sensed position, wheels stopped, then torque off.
+    // The hold: wheels stopped, arm at its last command (a loaded arm stays where it is), or at
+    // its sensed position if no command was issued yet; then torque off.
     let mut hold = UnitReading::default();
     if hardware.unit().read(&mut hold).is_ok() {
-        let mut s = moonhaul_core::state::UnitState::default();
-        s.arm.position_rad = hold.arm.position_rad;
-        let command = hold_command(&s);
+        let command = onboard.hold_command().unwrap_or_else(|| {
+            let mut s = moonhaul_core::state::UnitState::default();
+            s.arm.position_rad = hold.arm.position_rad;
+            anchor_command(&s)
+        });
         let _ = hardware.unit().write(&UnitOutput {
             command,
             grasp_open: record.grasp_open,

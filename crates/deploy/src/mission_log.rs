@@ -807,6 +807,10 @@ fn tick_schema() -> serde_json::Value {
                     "binding": { "type": "object", "description": "{\"arm\": i} or {\"base\": i}" }
                 }
             },
+            "tracking_d": {
+                "description": "This unit's d(U_{k-1}, Y_k) in tolerance units.",
+                "type": ["number", "null"]
+            },
             "sensed": state,
             "payload_height_estimate_m": { "type": ["number", "null"] },
             "goal_distance_m": number,
@@ -890,6 +894,7 @@ mod tests {
                 value: 0.4,
                 binding: Subsystem::Base(1),
             }),
+            tracking_d: (tick > 1).then_some(0.1),
             sensed,
             payload_height_estimate_m: (tick > 10).then_some(0.01 * tick as f64),
             goal_distance_m: 2.0,

@@ -32,6 +32,9 @@ pub struct TickRecord {
     pub t_max: f64,
     /// d of the issued step and the subsystem that binds it, when the clamp evaluated one.
     pub distance: Option<StackedDistance>,
+    /// This unit's own d(U_{k-1}, Y_k) in tolerance units (how far its drives are from the
+    /// command they were given); `None` when the pipeline did not run.
+    pub tracking_d: Option<f64>,
     /// This unit's state from its own encoders and odometry.
     pub sensed: UnitState,
     /// The gate's payload-height estimate (mean FK lift of the cargo over the units), m;

@@ -2,8 +2,10 @@
 //!
 //! hal reading → own state and wheel odometry → grasp FK → peers' latest published states →
 //! team agreement and phase gate (measurements from onboard estimates only) → observation
-//! (core's [`unit_observation`], the function training used) → active policy (core's MLP) →
-//! synchronization clamp → hardware output → mission-log record and the message to publish.
+//! (core's [`unit_observation`], the function training used) → active controller (a phase
+//! policy on core's MLP, or the scripted IK controller) → its increment through the one action
+//! pipeline (coord's [`ActionPipeline`]: F_k = U_{k−1} ⊕ Δ, clamp, hold rule) → hardware output
+//! → mission-log record and the message to publish.
 //!
 //! [`Onboard`] is transport- and clock-free: the daemon feeds it validated peer messages
 //! ([`Onboard::receive`]) and one hardware reading per tick ([`Onboard::tick`]), then writes
@@ -16,11 +18,18 @@
 //!   were sent at the end of their previous tick: a distributed 50 Hz team cannot see a peer's
 //!   state of the same instant. Training saw same-instant peer states; 20 ms is inside the
 //!   clamp's tolerances at the commanded speeds.
-//! - *The clamp across units.* Each unit runs the clamp on the whole stacked state: its own
-//!   S = U_{k-1} and F = policy target, and for each peer S = F = the command the peer last
-//!   published (a peer's target of this tick is unknowable). A peer lagging its own command
-//!   beyond tolerance therefore makes every step of this unit inadmissible, so it holds — the
-//!   synchronization the clamp exists for.
+//! - *The clamp across units* is coord's [`ActionPipeline`] (the function training and eval
+//!   call too): its own S = U_{k-1} and F = U_{k-1} ⊕ Δ, and for each peer S = F = the command
+//!   the peer last published. A peer lagging its own command beyond tolerance makes every step
+//!   of this unit inadmissible, so it holds (arm at U_{k-1}, wheels stopped) — the
+//!   synchronization the clamp exists for; its own drives failing to reach U_{k-1} for
+//!   `hold.tracking_stop_ticks` latch a `tracking` fault.
+//! - *The first command* is the anchor on the first sensed joints (wheels stopped): U_{k-1}
+//!   does not exist before it.
+//! - *Controllers.* [`Controller::Learned`] runs the phase policies (their files record the
+//!   increment map, [`ActionMap::of_policy`]); [`Controller::Scripted`] runs core's
+//!   [`PhaseScript`] on the same observation inputs (own encoders and odometry, the rest
+//!   grasp, the phase goal) with the shipped map of `configs/tasks.toml`.
 //! - *Measurements for the gate.* Payload height: the mean over the units of the FK lift of
 //!   the cargo (own arm, and the peer's arm from its published joints). Goal distance: this
 //!   unit's odometric distance to its phase goal. Release: this unit's own grasp force (a wrist
@@ -34,18 +43,20 @@
 //! - *Faults latch.* A drive fault, a non-finite reading or a non-finite policy output stops
 //!   the team (σ) and keeps this unit stopped, announcing why, until the daemon restarts.
 
-use moonhaul_coord::clamp::hold_command;
+use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::message::{
     Announcements, Body, Envelope, FaultKind, RejectCounts, Sender, UnitTick, PROTOCOL_VERSION,
 };
 use moonhaul_coord::{
-    Clamp, ClampInput, Decision, Directive, GateConfig, HoldReason, Measurements, SyncConfig, Team,
-    TeamSettings, UnitModel,
+    ActionPipeline, Decision, Directive, GateConfig, HoldReason, Increment, Measurements,
+    PipelineInput, SyncConfig, Team, TeamSettings, UnitModel,
 };
+use moonhaul_core::action::{ActionMap, ActionMapError};
 use moonhaul_core::observation::{
-    field_range, unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM,
+    unit_observation, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
 };
 use moonhaul_core::policy::{Policy, PolicyScratch};
+use moonhaul_core::scripted::{MissionPlan, PhaseScript, ScriptInput};
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_core::unit::UnitSpec;
@@ -61,17 +72,59 @@ pub struct PhasePolicies {
     pub place: Policy,
 }
 
-impl PhasePolicies {
-    /// Each phase's policy with the scratch it runs in, indexed by [`policy_slot`].
-    fn with_scratch(self) -> [(Policy, PolicyScratch); 3] {
-        [self.lift, self.transport, self.place].map(|p| {
+/// What drives a unit's increments.
+pub enum Controller {
+    /// The three phase policies.
+    Learned(Box<PhasePolicies>),
+    /// The scripted IK controller (`configs/mission.toml`), a model-based baseline flown
+    /// through the same pipeline.
+    Scripted(MissionPlan),
+}
+
+/// The controller as the tick runs it.
+enum Active {
+    /// Each phase's policy with its scratch and action map, indexed by [`policy_slot`].
+    Learned(Box<[(Policy, PolicyScratch, ActionMap); 3]>),
+    Scripted {
+        script: Box<PhaseScript>,
+        map: ActionMap,
+    },
+}
+
+impl Active {
+    fn new(controller: Controller, tasks: &TaskConfig) -> Result<Self, OnboardError> {
+        let policies = match controller {
+            Controller::Scripted(plan) => {
+                return Ok(Active::Scripted {
+                    script: Box::new(PhaseScript::new(plan)),
+                    map: ActionMap::from_settings(&tasks.action),
+                })
+            }
+            Controller::Learned(p) => *p,
+        };
+        let slot = |phase: Phase, p: Policy| -> Result<_, OnboardError> {
+            let m = p.metadata();
+            if m.obs_dim != ACTOR_OBS_DIM || m.action_dim != UNIT_ACTION_DIM {
+                return Err(OnboardError::PolicyShape {
+                    phase,
+                    obs: m.obs_dim,
+                    actions: m.action_dim,
+                });
+            }
+            let map = ActionMap::of_policy(&p)
+                .map_err(|source| OnboardError::ActionMap { phase, source })?;
             let scratch = p.scratch();
-            (p, scratch)
-        })
+            Ok((p, scratch, map))
+        };
+        Ok(Active::Learned(Box::new([
+            slot(Phase::Lift, policies.lift)?,
+            slot(Phase::Transport, policies.transport)?,
+            slot(Phase::Place, policies.place)?,
+        ])))
     }
 }
 
-/// Where `phase`'s policy sits in [`PhasePolicies::with_scratch`]; Idle has none.
+/// Where `phase`'s policy sits in [`Active::Learned`]; Idle has none.
 fn policy_slot(phase: Phase) -> Option<usize> {
     match phase {
         Phase::Lift => Some(0),
@@ -116,8 +169,11 @@ pub enum OnboardError {
     Team(#[from] moonhaul_coord::TeamError),
     #[error(transparent)]
     Clamp(#[from] moonhaul_coord::clamp::ClampError),
-    #[error("the observation layout has no field {0}")]
-    Layout(&'static str),
+    #[error("{phase} policy: {source}")]
+    ActionMap {
+        phase: Phase,
+        source: ActionMapError,
+    },
     #[error("{phase} policy maps {obs} observations to {actions} actions; a unit needs {ACTOR_OBS_DIM} → {UNIT_ACTION_DIM}")]
     PolicyShape {
         phase: Phase,
@@ -150,13 +206,12 @@ pub struct Onboard {
     gate: GateConfig,
     tasks: TaskConfig,
     team: Team,
-    clamp: Clamp,
-    policies: [(Policy, PolicyScratch); 3],
-    lift_index: usize,
-    peer_lift_index: usize,
+    pipeline: ActionPipeline,
+    controller: Active,
     odometry: PlanarPose,
-    /// U_{k-1} of this unit.
+    /// U_{k-1} of this unit; `anchored` once it was set from a first reading.
     previous: UnitCommand,
+    anchored: bool,
     /// Stamp of each peer's newest accepted state (`None`: never heard, or this unit). Its
     /// state and command go straight into `sensed` and `previous_all`.
     peer_stamp_us: Vec<Option<u64>>,
@@ -174,7 +229,6 @@ pub struct Onboard {
     // own entries are written by the tick, peers' by `receive`.
     sensed: Vec<UnitState>,
     previous_all: Vec<UnitCommand>,
-    target_all: Vec<UnitCommand>,
     issued_all: Vec<UnitCommand>,
     forces: Vec<f64>,
     message: Envelope,
@@ -185,35 +239,20 @@ impl Onboard {
     /// restarted unit never reuses one).
     pub fn new(
         settings: OnboardSettings,
-        policies: PhasePolicies,
+        controller: Controller,
         boot_us: u64,
     ) -> Result<Self, OnboardError> {
-        for (phase, policy) in [
-            (Phase::Lift, &policies.lift),
-            (Phase::Transport, &policies.transport),
-            (Phase::Place, &policies.place),
-        ] {
-            let m = policy.metadata();
-            if m.obs_dim != ACTOR_OBS_DIM || m.action_dim != UNIT_ACTION_DIM {
-                return Err(OnboardError::PolicyShape {
-                    phase,
-                    obs: m.obs_dim,
-                    actions: m.action_dim,
-                });
-            }
-        }
-        let field = |name: &'static str| field_range(name).ok_or(OnboardError::Layout(name));
-        let lift_index = field("cargo.ee_displacement_m")?.start + 2;
-        let peer_lift_index = field("peer.ee_displacement_m")?.start + 2;
+        let controller = Active::new(controller, &settings.tasks)?;
         let n = settings.team.team_size;
         let unit = settings.team.unit_index;
         let period_s = settings.team.control_period_us as f64 * 1e-6;
         let team = Team::new(settings.team.clone(), &settings.gate)?;
-        let clamp = Clamp::new(
+        let pipeline = ActionPipeline::new(
             UnitModel::new(settings.spec.clone()),
             &settings.sync,
             period_s,
             n,
+            unit,
         )?;
         let message = Envelope {
             version: PROTOCOL_VERSION,
@@ -235,12 +274,11 @@ impl Onboard {
             gate: settings.gate,
             tasks: settings.tasks,
             team,
-            clamp,
-            policies: policies.with_scratch(),
-            lift_index,
-            peer_lift_index,
+            pipeline,
+            controller,
             odometry: settings.start_pose,
             previous: UnitCommand::default(),
+            anchored: false,
             peer_stamp_us: vec![None; n],
             reference: None,
             episode: PhaseEpisode {
@@ -257,7 +295,6 @@ impl Onboard {
             seq: boot_us,
             sensed: vec![UnitState::default(); n],
             previous_all: vec![UnitCommand::default(); n],
-            target_all: vec![UnitCommand::default(); n],
             issued_all: vec![UnitCommand::default(); n],
             forces: vec![0.0; n],
             message,
@@ -284,6 +321,13 @@ impl Onboard {
             .iter()
             .enumerate()
             .all(|(i, t)| i == self.unit || t.is_some_and(|t| t >= stamp_us))
+    }
+
+    /// The command that holds this unit where it is (wheels stopped, arm at its last command),
+    /// once it has issued one.
+    pub fn hold_command(&self) -> Option<UnitCommand> {
+        self.anchored
+            .then(|| moonhaul_coord::clamp::hold_command(&self.previous))
     }
 
     /// This unit's own latched fault, if any.
@@ -338,8 +382,10 @@ impl Onboard {
             }
         };
         let force_n = reading.and_then(|r| r.grasp_force_n);
-        // A peer's target F_k is unknowable: S = F = its last published command.
-        self.target_all.copy_from_slice(&self.previous_all);
+        if !self.anchored && reading.is_some_and(reading_is_finite) {
+            self.previous = anchor_command(&own);
+            self.anchored = true;
+        }
         self.sensed[self.unit] = own;
         self.previous_all[self.unit] = self.previous;
 
@@ -347,7 +393,7 @@ impl Onboard {
         let goal = self.goal(now_us);
         let mut observed = self.observe(&goal, &mut obs);
         let lift_estimate_m = if observed {
-            (obs[self.lift_index] + obs[self.peer_lift_index]) / 2.0
+            ObservationView(&obs).lift_estimate_m()
         } else {
             f64::NAN
         };
@@ -374,24 +420,25 @@ impl Onboard {
             self.begin_phase(decision.phase, now_us, &own);
             observed = self.observe(&self.goal(now_us), &mut obs);
         }
-        let (hold, target) = self.target(&decision, &own, observed.then_some(&obs));
-        let target = match target {
-            Some(t) => t,
-            None => {
-                self.latch_fault(FaultKind::Policy, "non-finite policy output");
-                hold_command(&own)
-            }
-        };
+        let mut delta = [0.0; UNIT_ACTION_DIM];
+        let (hold, map) = self.increment(
+            &decision,
+            now_us,
+            &own,
+            observed.then_some(&obs),
+            &mut delta,
+        );
         let hold = hold.or_else(|| {
             self.fault()
                 .map(|f| HoldReason::SafetyStop(moonhaul_coord::message::StopReason::Fault(f)))
         });
-        self.target_all[self.unit] = target;
-        let report = self.clamp.step(
-            &ClampInput {
+        let map = map.filter(|_| hold.is_none());
+        let increment = map.as_ref().map(|map| Increment { map, delta: &delta });
+        let report = self.pipeline.step(
+            &PipelineInput {
                 sensed: &self.sensed,
                 previous: &self.previous_all,
-                target: &self.target_all,
+                increment,
             },
             hold,
             &mut self.issued_all,
@@ -401,9 +448,16 @@ impl Onboard {
             Err(_) => {
                 // Only non-finite inputs fail the clamp, and those latch above; hold anyway.
                 self.latch_fault(FaultKind::Policy, "clamp rejected its inputs");
-                (hold_command(&own), None)
+                (moonhaul_coord::clamp::hold_command(&self.previous), None)
             }
         };
+        if report.is_some_and(|r| r.tracking_lost) {
+            self.latch_fault(
+                FaultKind::Tracking,
+                "drives did not reach their command within hold.tracking_stop_ticks",
+            );
+        }
+        let target = *self.pipeline.target();
         self.previous = issued;
         if decision.phase == Phase::Place && hold.is_none() {
             self.update_release(lift_estimate_m);
@@ -415,9 +469,10 @@ impl Onboard {
         record.tick = self.tick;
         record.stamp_us = now_us;
         record.phase = decision.phase;
-        record.hold = report.and_then(|r| r.hold).or(hold);
-        record.t_max = report.map_or(0.0, |r| r.t_max);
-        record.distance = report.and_then(|r| r.distance);
+        record.hold = report.and_then(|r| r.clamp.hold).or(hold);
+        record.t_max = report.map_or(0.0, |r| r.clamp.t_max);
+        record.distance = report.and_then(|r| r.clamp.distance);
+        record.tracking_d = report.map(|r| r.tracking_d);
         record.sensed = own;
         record.payload_height_estimate_m = lift_estimate_m.is_finite().then_some(lift_estimate_m);
         record.goal_distance_m = goal_distance_m;
@@ -463,29 +518,14 @@ impl Onboard {
         s
     }
 
-    /// The goal of the phase episode in progress at `now_us`.
+    /// The goal of the phase episode in progress at `now_us` (core's one definition, with the
+    /// mission's targets).
     fn goal(&self, now_us: u64) -> PhaseGoal {
-        let t = &self.tasks.transport;
         let e = &self.episode;
-        let start = Vector2::new(e.start_base.x_m, e.start_base.y_m);
         let phase_s = now_us.saturating_sub(e.start_us) as f64 * 1e-6;
-        match e.phase {
-            Phase::Idle | Phase::Lift => PhaseGoal {
-                height_m: t.start_height_m,
-                base_goal_m: start,
-                velocity_mps: Vector2::zeros(),
-            },
-            Phase::Transport => PhaseGoal {
-                height_m: t.start_height_m,
-                base_goal_m: start + Vector2::new(t.distance_m, 0.0),
-                velocity_mps: Vector2::new(self.tasks.profile().speed_at(phase_s), 0.0),
-            },
-            Phase::Place => PhaseGoal {
-                height_m: 0.0,
-                base_goal_m: start,
-                velocity_mps: Vector2::zeros(),
-            },
-        }
+        let (height_m, travel_m) = self.tasks.mission_targets(e.phase);
+        self.tasks
+            .phase_goal(e.phase, height_m, &e.start_base, travel_m, phase_s)
     }
 
     /// o⁽ⁱ⁾ for `goal`; false before a rest grasp was captured or when FK fails.
@@ -526,31 +566,71 @@ impl Onboard {
         }
     }
 
-    /// The hold reason and this unit's target F_k (`None` target: the policy failed).
-    /// `obs`: this tick's o⁽ⁱ⁾ of the committed phase, `None` when it could not be formed.
-    fn target(
+    /// The hold reason, or this tick's increment of the active controller written into
+    /// `delta` and the map that bounds it (`None` map: nothing to run, hold). A controller
+    /// that fails (a non-finite policy output, IK without a solution) latches a policy fault.
+    fn increment(
         &mut self,
         decision: &Decision,
+        now_us: u64,
         own: &UnitState,
         obs: Option<&[f64; ACTOR_OBS_DIM]>,
-    ) -> (Option<HoldReason>, Option<UnitCommand>) {
+        delta: &mut [f64; UNIT_ACTION_DIM],
+    ) -> (Option<HoldReason>, Option<ActionMap>) {
         let phase = match decision.directive {
-            Directive::Hold(reason) => return (Some(reason), Some(hold_command(own))),
+            Directive::Hold(reason) => return (Some(reason), None),
             Directive::Run(phase) => phase,
         };
-        let (Some(slot), Some(obs)) = (policy_slot(phase), obs) else {
-            return (None, None);
+        let goal = self.goal(now_us);
+        let profile = self.tasks.profile();
+        let phase_time_s = now_us.saturating_sub(self.episode.start_us) as f64 * 1e-6;
+        let failed = match (&mut self.controller, policy_slot(phase), obs) {
+            (Active::Learned(policies), Some(slot), Some(obs)) => {
+                let (policy, scratch, _) = &mut policies[slot];
+                let acted = policy.act(obs, scratch, delta);
+                if self.corrupt_policy {
+                    delta[0] = f64::NAN;
+                }
+                acted.is_err() || !delta.iter().all(|v| v.is_finite())
+            }
+            // An observation exists only once the rest grasp was captured.
+            (Active::Scripted { script, .. }, Some(_), Some(_)) => match &self.reference {
+                Some(reference) => {
+                    let input = ScriptInput {
+                        spec: &self.spec,
+                        phase,
+                        phase_time_s,
+                        reference,
+                        own,
+                        phase_start_base: &self.episode.start_base,
+                        goal: &goal,
+                        profile: &profile,
+                        previous: &self.previous,
+                    };
+                    match script.command(&input) {
+                        Ok(desired) => {
+                            *delta = ActionMap::toward(&self.previous, &desired);
+                            if self.corrupt_policy {
+                                delta[0] = f64::NAN;
+                            }
+                            !delta.iter().all(|v| v.is_finite())
+                        }
+                        Err(_) => true,
+                    }
+                }
+                None => true,
+            },
+            _ => true,
         };
-        let (policy, scratch) = &mut self.policies[slot];
-        let mut u = [0.0; UNIT_ACTION_DIM];
-        let acted = policy.act(obs, scratch, &mut u);
-        if self.corrupt_policy {
-            u[0] = f64::NAN;
+        if failed {
+            self.latch_fault(FaultKind::Policy, "non-finite or failed controller output");
+            return (None, None);
         }
-        match acted {
-            Ok(()) if u.iter().all(|v| v.is_finite()) => (None, Some(UnitCommand::from_action(&u))),
-            _ => (None, None),
-        }
+        let map = match &self.controller {
+            Active::Learned(policies) => policy_slot(phase).map(|slot| policies[slot].2),
+            Active::Scripted { map, .. } => Some(*map),
+        };
+        (None, map)
     }
 
     fn update_release(&mut self, lift_estimate_m: f64) {
@@ -599,6 +679,7 @@ impl TickRecord {
             hold: None,
             t_max: 0.0,
             distance: None,
+            tracking_d: None,
             sensed: UnitState::default(),
             payload_height_estimate_m: None,
             goal_distance_m: 0.0,

@@ -38,6 +38,8 @@ pub struct UnitConfig {
     /// The folder of the phase policies `lift.safetensors`, `transport.safetensors`,
     /// `place.safetensors`.
     pub policies: PathBuf,
+    /// The scripted controller's plan (`configs/mission.toml`), for `--controller scripted`.
+    pub mission: PathBuf,
     /// Where this unit's base starts in the team's world frame (all units start from known
     /// poses); a launcher may override it.
     pub start_pose: PlanarPose,
@@ -73,6 +75,7 @@ impl Validate for UnitConfig {
             &mut self.sync,
             &mut self.tasks,
             &mut self.policies,
+            &mut self.mission,
             &mut self.can,
         ] {
             *file = config::resolve(path, file);

@@ -10,10 +10,11 @@ use moonhaul_coord::message::{
 };
 use moonhaul_coord::TeamSettings;
 use moonhaul_core::config::repo_file;
+use moonhaul_core::scripted::MissionPlan;
 use moonhaul_core::state::{Phase, PlanarPose};
 use moonhaul_deploy::daemon::{load_policies, mock_hardware};
 use moonhaul_deploy::record::TickRecord;
-use moonhaul_deploy::tick::{Onboard, OnboardSettings};
+use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
 use moonhaul_deploy::unit_config::UnitConfig;
 use moonhaul_hal::unit::{FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitReading};
 
@@ -23,7 +24,7 @@ use counting_alloc::counted;
 
 const PERIOD_US: u64 = 20_000;
 
-fn unit(i: usize) -> (Onboard, MockUnit) {
+fn unit(i: usize, scripted: bool) -> (Onboard, MockUnit) {
     let team = TeamSettings {
         team: "moonhaul".into(),
         team_size: 2,
@@ -42,7 +43,13 @@ fn unit(i: usize) -> (Onboard, MockUnit) {
     hw.activate().unwrap();
     let onboard = Onboard::new(
         settings,
-        load_policies(&repo_file("assets/policies")).unwrap(),
+        if scripted {
+            Controller::Scripted(MissionPlan::shipped().unwrap())
+        } else {
+            Controller::Learned(Box::new(
+                load_policies(&repo_file("assets/policies")).unwrap(),
+            ))
+        },
         0,
     )
     .unwrap();
@@ -55,8 +62,17 @@ fn onboard_message(onboard: &mut Onboard) -> Envelope {
 }
 
 #[test]
-fn the_tick_does_not_allocate() {
-    let mut units = [unit(0), unit(1)];
+fn the_tick_does_not_allocate_with_the_policies() {
+    tick_without_allocating(false);
+}
+
+#[test]
+fn the_tick_does_not_allocate_with_the_scripted_controller() {
+    tick_without_allocating(true);
+}
+
+fn tick_without_allocating(scripted: bool) {
+    let mut units = [unit(0, scripted), unit(1, scripted)];
     let mut records = [TickRecord::for_team(2), TickRecord::for_team(2)];
     let mut outbox: [Option<Envelope>; 2] = [None, None];
     let start = Envelope {

@@ -14,10 +14,11 @@ use moonhaul_coord::message::{
 };
 use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
+use moonhaul_core::scripted::MissionPlan;
 use moonhaul_core::state::{Phase, PlanarPose};
-use moonhaul_deploy::daemon::{load_policies, mock_hardware};
+use moonhaul_deploy::daemon::mock_hardware;
 use moonhaul_deploy::record::TickRecord;
-use moonhaul_deploy::tick::{Onboard, OnboardSettings};
+use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
 use moonhaul_deploy::unit_config::UnitConfig;
 use moonhaul_hal::unit::{FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitReading};
 
@@ -79,7 +80,9 @@ impl Team {
                 hw.activate().unwrap();
                 let onboard = Onboard::new(
                     onboard_settings,
-                    load_policies(&repo_file("assets/policies")).unwrap(),
+                    // The scripted controller: these tests are about the team, not a policy's
+                    // skill, and it lifts the mock's cargo past h_min for certain.
+                    Controller::Scripted(MissionPlan::shipped().unwrap()),
                     BOOT_US,
                 )
                 .unwrap();
@@ -193,7 +196,7 @@ fn holds_for(team: &Team, i: usize, want: impl Fn(StopReason) -> bool) {
         Some(HoldReason::SafetyStop(reason)) => assert!(want(reason), "unit {i}: {reason:?}"),
         other => panic!("unit {i} is not stopped: {other:?}"),
     }
-    assert_eq!(r.issued, hold_command(&r.sensed), "unit {i}");
+    assert_eq!(r.issued, hold_command(&r.team_previous[i]), "unit {i}");
 }
 
 #[test]
@@ -230,7 +233,7 @@ fn a_mission_on_mock_hardware_runs_the_phases_in_step() {
             assert_eq!(pa, pb, "tick {}", a.tick);
         }
     }
-    // Mock drives follow their commands exactly and carry no payload: the lift policy raises
+    // Mock drives follow their commands exactly and carry no payload: the scripted lift raises
     // the cargo estimate past h_min and the team commits Transport together.
     let visited: Vec<Phase> = phases.iter().map(|p| p.0).collect();
     assert!(visited.contains(&Phase::Transport), "{phases:?}");

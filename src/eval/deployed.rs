@@ -1,0 +1,296 @@
+//! The deployed stack in evaluation: whole missions flown by the onboard tick itself
+//! ([`moonhaul_deploy::tick::Onboard`], one per unit, in process) over sim-backed hardware
+//! ([`moonhaul_deploy::sim_link::SimHardware`], the daemon's `--hal sim` backend), sensed
+//! through the world process's own function ([`crate::mission::world::sense`]). Nothing of the
+//! tick is copied here: gate, team agreement, observation, controller, pipeline, clamp and hold
+//! rule are the robot's.
+//!
+//! What differs from `moonhaul mission sim`, and why it does not change what a unit computes:
+//! no zenoh and no authentication (each unit's message is handed to its peers directly, one
+//! tick late, as in lockstep over the network, where a peer's message of the same tick arrives
+//! after the tick); the operator's start is handed to every unit on the same tick.
+//!
+//! Each world is one mission: lift to `transport.start_height_m`, transport, place; it ends a
+//! second after the team returns to Idle (completed: it went through Place and released every
+//! grasp with no unit faulted), or at [`MAX_MISSION_S`]. The rows are split by the committed
+//! phase of unit 0 into per-phase segments, the per-phase cases of the table; the clamp figures
+//! come from every unit's tick records.
+
+use anyhow::{Context, Result};
+use moonhaul_coord::message::{Body, Envelope, OperatorCommand, RejectCounts, Sender};
+use moonhaul_coord::{HoldReason, TeamSettings};
+use moonhaul_core::state::Phase;
+use moonhaul_deploy::record::TickRecord;
+use moonhaul_deploy::sim_link::SimHardware;
+use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
+use moonhaul_hal::unit::{UnitHardware, UnitReading};
+use moonhaul_sim::scene::{EnvState, SceneModel, UNITS};
+use moonhaul_sim::{BatchEnv, EnvOptions};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::rollout::{state_row, Episodes, ScriptedSegments};
+use crate::mission::world::sense;
+
+/// Longest mission, simulated seconds: the phases' episode lengths (28 s) with room for the
+/// gate's debounces, agreement and the release.
+pub const MAX_MISSION_S: f64 = 60.0;
+/// Ticks the team idles before the operator's start, so every unit has heard its peers.
+const START_TICK: u64 = 5;
+
+/// What the onboard tick of each unit is built from (the daemon's settings, less the unit's
+/// own index and start pose, which come from the world).
+pub struct Stack {
+    pub team: TeamSettings,
+    pub gate: moonhaul_coord::GateConfig,
+    pub sync: moonhaul_coord::SyncConfig,
+    pub tasks: moonhaul_core::task_config::TaskConfig,
+}
+
+/// One deployed mission's rows, split by phase, and what the pipeline did.
+pub struct DeployedMission {
+    pub segments: ScriptedSegments,
+    /// Unit ticks in Lift, Transport or Place (both units counted).
+    pub policy_ticks: u64,
+    /// Of those: issued less than the full step; held (any reason); held for want of an
+    /// admissible step.
+    pub clamped_ticks: u64,
+    pub hold_ticks: u64,
+    pub no_step_ticks: u64,
+    /// Sum of t_max over the policy ticks (0 on a hold).
+    pub t_max_sum: f64,
+    /// Sum and count of d(U_{k−1}, Y_k) over loaded policy ticks (grasp closed).
+    pub tracking_d_sum: f64,
+    pub loaded_ticks: u64,
+    /// Largest and mean grasp force (simulator truth) while grasped, N.
+    pub max_grasp_force_n: f64,
+    pub mean_grasp_force_n: f64,
+    pub completed: bool,
+}
+
+/// Runs `run.count` seeded missions; `controller()` builds each unit's controller.
+pub fn missions(
+    scene: &SceneModel,
+    stack: &Stack,
+    controller: &(dyn Fn() -> Result<Controller> + Sync),
+    run: Episodes,
+) -> Result<Vec<DeployedMission>> {
+    let options = EnvOptions {
+        randomize: run.randomize,
+        payload: Some(run.payload),
+        start_lift_m: 0.0,
+    };
+    let mut batch = BatchEnv::new(scene.clone(), run.count, run.seed, options, run.threads)?;
+    let mut work: Vec<(u64, Option<DeployedMission>)> = (0..run.count)
+        .map(|i| (moonhaul_sim::batch::env_seed(run.seed, i), None))
+        .collect();
+    batch.for_each_with(&mut work, |scene, env, state, (seed, slot)| -> Result<()> {
+        let period_s = 1.0 / scene.config.control_hz;
+        let period_us = (period_s * 1e6).round() as u64;
+        let mut units = Vec::with_capacity(UNITS);
+        for i in 0..UNITS {
+            let settings = OnboardSettings {
+                spec: scene.spec.clone(),
+                team: TeamSettings {
+                    unit_index: i,
+                    team_size: UNITS,
+                    control_period_us: period_us,
+                    ..stack.team.clone()
+                },
+                gate: stack.gate,
+                sync: stack.sync,
+                tasks: stack.tasks,
+                start_pose: state.units[i].state.base_pose,
+            };
+            let onboard = Onboard::new(settings, controller()?, 0)
+                .with_context(|| format!("unit {i}'s onboard tick"))?;
+            let mut hw = SimHardware::new(i);
+            hw.activate()?;
+            units.push((onboard, hw, TickRecord::for_team(UNITS)));
+        }
+        let mut noise = ChaCha8Rng::seed_from_u64(moonhaul_core::seed::stream_seed(*seed, 0x5e45));
+        let mut mission = Tally::default();
+        let mut reading = UnitReading::default();
+        let mut messages: Vec<Envelope> = Vec::with_capacity(UNITS);
+        let mut seen_place = false;
+        let mut ended_at: Option<u64> = None;
+        let max_ticks = (MAX_MISSION_S / period_s).round() as u64;
+        let (mut last_phase, mut phase_start) = (Phase::Idle, 0u64);
+        for tick in 0..max_ticks {
+            let now_us = tick * period_us;
+            if tick == START_TICK {
+                let start = Envelope {
+                    version: moonhaul_coord::message::PROTOCOL_VERSION,
+                    team: stack.team.team.clone(),
+                    sender: Sender::Operator,
+                    seq: now_us + 1,
+                    stamp_us: now_us,
+                    body: Body::Operator(OperatorCommand::Start { mission: 1 }),
+                };
+                for (onboard, ..) in &mut units {
+                    onboard.receive(&start);
+                }
+            }
+            let mut commands = [moonhaul_core::state::UnitCommand::default(); UNITS];
+            messages.clear();
+            for (i, (onboard, hw, record)) in units.iter_mut().enumerate() {
+                hw.deliver(sense(state, i, tick, now_us, &stack.tasks, &mut noise));
+                let read = hw.read(&mut reading);
+                let out = onboard.tick(
+                    now_us,
+                    read.is_ok().then_some(&reading),
+                    &RejectCounts::default(),
+                    record,
+                );
+                let output = out.output;
+                messages.push(out.message.clone());
+                commands[i] = output.command;
+                if output.grasp_open && state.units[i].grasp.attached {
+                    env.release_grasp(i);
+                }
+                mission.unit_tick(record, state.units[i].grasp.attached);
+            }
+            for message in &messages {
+                for (onboard, ..) in &mut units {
+                    if message.sender != Sender::Unit(onboard.unit()) {
+                        onboard.receive(message);
+                    }
+                }
+            }
+            env.step(scene, &commands);
+            env.state_into(scene, state);
+            if !state.is_finite() {
+                break;
+            }
+            let phase = units[0].0.phase();
+            seen_place |= phase == Phase::Place;
+            if phase != last_phase {
+                (last_phase, phase_start) = (phase, tick);
+            }
+            mission.world_tick(state);
+            let phase_s = (tick - phase_start) as f64 * period_s;
+            mission.row(phase, seen_place, phase_s, period_s, &stack.tasks, state);
+            let all_idle = units.iter().all(|(o, ..)| o.phase() == Phase::Idle);
+            if tick > START_TICK + 1 && all_idle {
+                let since = *ended_at.get_or_insert(tick);
+                if (tick - since) as f64 * period_s >= super::metrics::STEADY_WINDOW_S {
+                    break;
+                }
+            }
+        }
+        let faulted = units.iter().any(|(o, ..)| o.fault().is_some());
+        let released = state.units.iter().all(|u| !u.grasp.attached);
+        mission.completed = seen_place && ended_at.is_some() && released && !faulted;
+        *slot = Some(mission.finish());
+        Ok(())
+    })?;
+    Ok(work.into_iter().filter_map(|(_, m)| m).collect())
+}
+
+/// A mission's running figures.
+#[derive(Default)]
+struct Tally {
+    segments: Option<ScriptedSegments>,
+    policy_ticks: u64,
+    clamped_ticks: u64,
+    hold_ticks: u64,
+    no_step_ticks: u64,
+    t_max_sum: f64,
+    tracking_d_sum: f64,
+    loaded_ticks: u64,
+    force_sum_n: f64,
+    force_samples: u64,
+    max_grasp_force_n: f64,
+    completed: bool,
+}
+
+impl Tally {
+    fn unit_tick(&mut self, r: &TickRecord, grasped: bool) {
+        if !r.phase.has_policy() {
+            return;
+        }
+        self.policy_ticks += 1;
+        self.t_max_sum += r.t_max;
+        self.clamped_ticks += u64::from(r.t_max < 1.0);
+        self.hold_ticks += u64::from(r.hold.is_some());
+        self.no_step_ticks += u64::from(r.hold == Some(HoldReason::NoAdmissibleStep));
+        if let (true, Some(d)) = (grasped, r.tracking_d) {
+            self.tracking_d_sum += d;
+            self.loaded_ticks += 1;
+        }
+    }
+
+    fn world_tick(&mut self, state: &EnvState) {
+        for u in state.units.iter().filter(|u| u.grasp.attached) {
+            self.max_grasp_force_n = self.max_grasp_force_n.max(u.grasp.force_n);
+            self.force_sum_n += u.grasp.force_n;
+            self.force_samples += 1;
+        }
+    }
+
+    /// The row of this tick in its phase's segment; after Place, Idle rows (the release and
+    /// the rest after it) belong to the placement.
+    fn row(
+        &mut self,
+        phase: Phase,
+        seen_place: bool,
+        phase_s: f64,
+        period_s: f64,
+        tasks: &moonhaul_core::task_config::TaskConfig,
+        state: &EnvState,
+    ) {
+        let segments = self.segments.get_or_insert_with(|| ScriptedSegments {
+            lift: Vec::new(),
+            transport: Vec::new(),
+            place: Vec::new(),
+        });
+        let segment = match phase {
+            Phase::Lift => &mut segments.lift,
+            Phase::Transport => &mut segments.transport,
+            Phase::Place => &mut segments.place,
+            Phase::Idle if seen_place => &mut segments.place,
+            Phase::Idle => return,
+        };
+        // The goal the units fly to (their own starts do not matter for h* and v_cmd).
+        let row_phase = if phase == Phase::Idle {
+            Phase::Place
+        } else {
+            phase
+        };
+        let (height_m, travel_m) = tasks.mission_targets(row_phase);
+        let goal = tasks.phase_goal(row_phase, height_m, &Default::default(), travel_m, phase_s);
+        let (goal_height_m, v_cmd) = (goal.height_m, goal.velocity_mps.x);
+        let t_s = segment.len() as f64 * period_s;
+        segment.push(state_row(
+            t_s,
+            row_phase,
+            goal_height_m,
+            [v_cmd, 0.0],
+            state,
+        ));
+    }
+
+    fn finish(self) -> DeployedMission {
+        DeployedMission {
+            segments: self.segments.unwrap_or(ScriptedSegments {
+                lift: Vec::new(),
+                transport: Vec::new(),
+                place: Vec::new(),
+            }),
+            policy_ticks: self.policy_ticks,
+            clamped_ticks: self.clamped_ticks,
+            hold_ticks: self.hold_ticks,
+            no_step_ticks: self.no_step_ticks,
+            t_max_sum: self.t_max_sum,
+            tracking_d_sum: self.tracking_d_sum,
+            loaded_ticks: self.loaded_ticks,
+            max_grasp_force_n: self.max_grasp_force_n,
+            mean_grasp_force_n: if self.force_samples > 0 {
+                self.force_sum_n / self.force_samples as f64
+            } else {
+                0.0
+            },
+            completed: self.completed,
+        }
+    }
+}
