@@ -35,6 +35,9 @@ pub struct WorldConfig {
     pub sim: PathBuf,
     /// `configs/tasks.toml`, relative to this config file.
     pub tasks: PathBuf,
+    /// `configs/sync.toml` (the clamp and hold rule the tasks step through), relative to this
+    /// config file.
+    pub sync: PathBuf,
 }
 
 /// What to train and how the run is driven.
@@ -192,7 +195,7 @@ impl Validate for TrainConfig {
         if let Some(world) = &mut self.world {
             // Absolute where they exist, so the resolved config saved in a run folder still
             // names them; a missing file is reported when the world is built.
-            for path in [&mut world.sim, &mut world.tasks] {
+            for path in [&mut world.sim, &mut world.tasks, &mut world.sync] {
                 let resolved = config::resolve(config_path, path);
                 *path = std::fs::canonicalize(&resolved).unwrap_or(resolved);
             }

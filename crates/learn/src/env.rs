@@ -84,6 +84,12 @@ pub trait VecEnv {
         vec![0.0; self.action_dim()]
     }
 
+    /// Metadata the exported policy must carry for a runtime to run it as trained (the phase
+    /// tasks' action map and its version); default none.
+    fn policy_metadata(&self) -> Vec<(String, String)> {
+        Vec::new()
+    }
+
     /// Reseeds every env's randomness from `seed` (same seed, same initial states) and starts
     /// new episodes; writes the first observations into `obs` (`[num_envs * obs_dim]`) and
     /// `critic_obs` (`[num_envs * critic_obs_dim]`).

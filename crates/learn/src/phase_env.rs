@@ -16,7 +16,7 @@
 use std::time::Instant;
 
 use moonhaul_core::observation::ACTOR_OBS_DIM;
-use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
+use moonhaul_core::state::{Phase, UNIT_ACTION_DIM};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
 use moonhaul_sim::task::{Episode, PhaseTask, StepOutcome, TaskConfig, CRITIC_OBS_DIM};
 use moonhaul_sim::{BatchEnv, SimError};
@@ -30,7 +30,8 @@ use crate::LearnError;
 struct World {
     episode: Episode,
     rng: ChaCha8Rng,
-    commands: [UnitCommand; UNITS],
+    /// This step's increments Δ = step ⊙ a of both units, fed to the episode's pipelines.
+    deltas: [[f64; UNIT_ACTION_DIM]; UNITS],
     obs: [[f64; ACTOR_OBS_DIM]; UNITS],
     critic: [[f64; CRITIC_OBS_DIM]; UNITS],
     final_obs: [[f64; ACTOR_OBS_DIM]; UNITS],
@@ -103,14 +104,15 @@ impl PhaseVecEnv {
         phase: Option<Phase>,
         scene: SceneModel,
         tasks: TaskConfig,
+        sync: moonhaul_coord::SyncConfig,
         reward: RewardConfig,
         gamma: f64,
         worlds: usize,
         threads: usize,
     ) -> Result<Self, LearnError> {
         let task = match phase {
-            Some(phase) => PhaseTask::new(phase, tasks, &scene)?,
-            None => PhaseTask::mission(tasks, &scene)?,
+            Some(phase) => PhaseTask::new(phase, tasks, sync, &scene)?,
+            None => PhaseTask::mission(tasks, sync, &scene)?,
         };
         let options = task.env_options(true, None);
         let batch = BatchEnv::new(scene, worlds, 0, options, threads)?;
@@ -146,7 +148,7 @@ impl PhaseVecEnv {
             let mut world = World {
                 episode,
                 rng,
-                commands: [UnitCommand::default(); UNITS],
+                deltas: [[0.0; UNIT_ACTION_DIM]; UNITS],
                 obs: [[0.0; ACTOR_OBS_DIM]; UNITS],
                 critic: [[0.0; CRITIC_OBS_DIM]; UNITS],
                 final_obs: [[0.0; ACTOR_OBS_DIM]; UNITS],
@@ -212,12 +214,17 @@ impl VecEnv for PhaseVecEnv {
         UNIT_ACTION_DIM
     }
 
+    /// The increment map: raw actions are scaled to Δ = step ⊙ a (no offset), the pipeline
+    /// bounds them; the exported policy therefore outputs the increment itself.
     fn action_scale(&self) -> Vec<f64> {
-        self.task.action_scale().to_vec()
+        self.task.action_map().step.to_vec()
     }
 
-    fn action_offset(&self) -> Vec<f64> {
-        self.task.action_offset().to_vec()
+    fn policy_metadata(&self) -> Vec<(String, String)> {
+        moonhaul_core::action::ActionMap::metadata()
+            .into_iter()
+            .map(|(k, v)| (k.to_owned(), v))
+            .collect()
     }
 
     fn reset(
@@ -281,9 +288,9 @@ impl VecEnv for PhaseVecEnv {
         for (w, world) in self.worlds.iter_mut().enumerate() {
             for i in 0..UNITS {
                 let row = w * UNITS + i;
-                world.commands[i] = self
+                world.deltas[i] = self
                     .task
-                    .command(&actions[row * UNIT_ACTION_DIM..(row + 1) * UNIT_ACTION_DIM]);
+                    .increment(&actions[row * UNIT_ACTION_DIM..(row + 1) * UNIT_ACTION_DIM]);
             }
         }
         let (task, reward, gamma) = (&self.task, &self.reward, self.gamma);
@@ -291,7 +298,8 @@ impl VecEnv for PhaseVecEnv {
         self.batch
             .for_each_with(&mut self.worlds, |scene, env, state, world| {
                 let start = Instant::now();
-                env.step(scene, &world.commands);
+                let commands = world.episode.commands(task, &world.deltas)?;
+                env.step(scene, &commands);
                 env.state_into(scene, state);
                 let physics_end = Instant::now();
                 world.physics_cpu_s = (physics_end - start).as_secs_f64();

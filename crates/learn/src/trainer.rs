@@ -210,6 +210,7 @@ pub fn export_best(
         "best evaluation return of the run".into(),
     );
     let (phase, _) = export_identity(config.run.task);
+    extra.extend(env.policy_metadata());
     let exported = export_policy(
         ppo.policy(),
         phase,
@@ -338,6 +339,7 @@ pub fn train(
     );
     let (phase, _) = export_identity(task);
     let env = runner.env();
+    extra.extend(env.policy_metadata());
     let exported = export_policy(
         runner.ppo().policy(),
         phase,
