@@ -25,7 +25,8 @@ const TORCH_VERSION: &str = "2.13.0";
 const USAGE: &str = "usage: cargo xtask <demo|test|setup|train-all|bench|cargo ARGS...>
 
   demo          run the main job: lift, transport and place a payload in simulation with
-                two wheel-arm units, and bring up a unit's CAN drives (emulated); see runs/demo/
+                two wheel-arm units (the scripted controller through gate and clamp), and
+                bring up a unit's CAN drives (emulated); see runs/demo/
   test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
   setup         only install libtorch (PyTorch from PyPI) into the project venv
   train-all     retrain the bundled policies from scratch: lift, transport and place with
@@ -189,11 +190,15 @@ fn demo() -> Result<(), String> {
         run(Command::new(&cargo).current_dir(&root).args(all))
     };
     moonhaul(&["urdf", "check", "assets/unit.urdf"])?;
-    // The learned mission: three payloads, three trials each, as the paper flew them; every
-    // unit its own process on the sim-backed drives, peers and operator over zenoh.
+    // The mission: three payloads, three trials each, as the paper flew them; every unit its
+    // own process on the sim-backed drives, peers and operator over zenoh. The scripted IK
+    // controller flies it through the same gate, action pipeline and clamp the policies use,
+    // until the policies trained in that pipeline complete it (README, "The action pipeline").
     moonhaul(&[
         "mission",
         "sim",
+        "--controller",
+        "scripted",
         "--payload",
         "box,bricks,sledge",
         "--trials",
