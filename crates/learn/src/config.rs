@@ -385,10 +385,7 @@ mod tests {
             assert_eq!(c.env.num_envs, envs, "{name}");
             assert_eq!(c.policy.actor_hidden, hidden, "{name}");
             assert_eq!(c.policy.critic_hidden, hidden, "{name}");
-            assert_eq!(
-                (c.policy.init_std, c.policy.actor_output_gain),
-                (0.05, 0.01)
-            );
+            assert_eq!((c.policy.init_std, c.policy.actor_output_gain), (0.5, 0.01));
         }
         assert_eq!(repo_config("pendulum").run.task, Task::Pendulum);
     }
