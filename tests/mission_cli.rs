@@ -223,7 +223,8 @@ fn a_mock_team_carries_into_transport_and_a_killed_unit_stops_its_peer() {
     await_status(&keys, port, Duration::from_secs(60), |s| {
         s.matches(": transport").count() == 2
     });
-    std::thread::sleep(Duration::from_millis(500));
+    // Longer than the log's 1 s flush period, so the killed unit's log holds transport.
+    std::thread::sleep(Duration::from_millis(1500));
     u1.signal("-KILL");
     u1.wait(Duration::from_secs(5));
     std::thread::sleep(Duration::from_millis(500));

@@ -97,14 +97,14 @@ pub struct PhaseVecEnv {
 
 impl PhaseVecEnv {
     /// `worlds` simulated worlds (2 rows each) of `phase` (`None`: the monolithic baseline's
-    /// whole mission) on `scene`, on `threads` simulator threads, with domain randomization on.
+    /// whole mission) on `scene` with the tasks' settings and the clamp of `sync`, on `threads`
+    /// simulator threads, with domain randomization on.
     /// The action map is built around the grasp of the first of `randomization.payloads` (a
     /// payload file the caller added with [`SceneModel::add_payload_file`], say).
     pub fn new(
         phase: Option<Phase>,
         scene: SceneModel,
-        tasks: TaskConfig,
-        sync: moonhaul_coord::SyncConfig,
+        (tasks, sync): (TaskConfig, moonhaul_coord::SyncConfig),
         reward: RewardConfig,
         gamma: f64,
         worlds: usize,

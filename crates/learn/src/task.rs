@@ -62,8 +62,7 @@ pub fn make_env(
     Ok(Box::new(PhaseVecEnv::new(
         phase,
         scene,
-        tasks,
-        sync,
+        (tasks, sync),
         reward,
         config.ppo.gamma,
         num_envs,
