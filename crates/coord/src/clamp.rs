@@ -195,10 +195,7 @@ impl Clamp {
             return Ok(self.hold(input, reason, None, issued));
         }
         for (y, s) in self.sensed.units.iter_mut().zip(input.sensed) {
-            y.arm = self
-                .model
-                .arm_world_pose(&s.base_pose, &s.arm.position_rad)?;
-            y.base_xy_m = Vector2::new(s.base_pose.x_m, s.base_pose.y_m);
+            *y = self.model.sensed_image(s)?;
         }
         let full = self.distance_at(input, 1.0)?;
         if full.value <= 1.0 {
@@ -318,17 +315,26 @@ impl Clamp {
             .zip(commands)
         {
             let command = interpolate_command(prev, target, t);
-            let base = self.model.spec().integrate_base(
-                &s.base_pose,
-                &command.wheel_velocity_radps,
-                self.control_period_s,
-            );
-            x.arm = self
+            *x = self
                 .model
-                .arm_world_pose(&base, &command.arm_position_rad)?;
-            x.base_xy_m = Vector2::new(base.x_m, base.y_m);
+                .command_image(s, &command, self.control_period_s)?;
         }
         Ok(self.candidate.distance(&self.sensed, &self.tolerances)?)
+    }
+
+    /// The tolerances d is normalized by.
+    pub fn tolerances(&self) -> &SyncTolerances {
+        &self.tolerances
+    }
+
+    /// The unit model the images are computed on.
+    pub fn model(&self) -> &UnitModel {
+        &self.model
+    }
+
+    /// The period a command's base motion is integrated over, s.
+    pub fn control_period_s(&self) -> f64 {
+        self.control_period_s
     }
 
     fn issue(

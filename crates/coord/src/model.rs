@@ -8,9 +8,10 @@
 //! the paper), so one model serves all of them.
 
 use moonhaul_core::kinematics::KinematicsError;
-use moonhaul_core::state::{PlanarPose, UnitCommand, ARM_JOINTS};
+use moonhaul_core::stacked::UnitPoses;
+use moonhaul_core::state::{PlanarPose, UnitCommand, UnitState, ARM_JOINTS};
 use moonhaul_core::unit::{UnitSpec, UnitSpecError};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
 use std::path::Path;
 
 /// Upper bounds on the change of one unit's task-space image per unit of the interpolation
@@ -98,6 +99,31 @@ impl UnitModel {
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), base.yaw_rad),
         );
         Ok(base * self.mount * self.spec.arm.forward(arm_rad)?)
+    }
+
+    /// A unit's part of the sensed stacked state Y_k: its arm pose and base position.
+    pub fn sensed_image(&self, s: &UnitState) -> Result<UnitPoses, KinematicsError> {
+        Ok(UnitPoses {
+            arm: self.arm_world_pose(&s.base_pose, &s.arm.position_rad)?,
+            base_xy_m: Vector2::new(s.base_pose.x_m, s.base_pose.y_m),
+        })
+    }
+
+    /// The task-space image of `command` for a unit sensed at `s`: the base integrated over
+    /// `dt_s` under its wheel velocities, the arm by FK on that base.
+    pub fn command_image(
+        &self,
+        s: &UnitState,
+        command: &UnitCommand,
+        dt_s: f64,
+    ) -> Result<UnitPoses, KinematicsError> {
+        let base = self
+            .spec
+            .integrate_base(&s.base_pose, &command.wheel_velocity_radps, dt_s);
+        Ok(UnitPoses {
+            arm: self.arm_world_pose(&base, &command.arm_position_rad)?,
+            base_xy_m: Vector2::new(base.x_m, base.y_m),
+        })
     }
 
     /// Position limits of the arm joints, base to tip (rad).

@@ -19,9 +19,7 @@
 //! so the servos stop pushing toward a command they cannot reach.
 
 use moonhaul_core::action::ActionMap;
-use moonhaul_core::stacked::{SyncTolerances, UnitPoses};
 use moonhaul_core::state::{UnitCommand, UnitState, UNIT_ACTION_DIM};
-use nalgebra::Vector2;
 
 use crate::clamp::{anchor_command, Clamp, ClampError, ClampInput, ClampReport, HoldReason};
 use crate::config::{HoldConfig, SyncConfig};
@@ -63,11 +61,8 @@ pub struct PipelineReport {
 #[derive(Debug, Clone)]
 pub struct ActionPipeline {
     clamp: Clamp,
-    model: UnitModel,
-    tolerances: SyncTolerances,
     hold: HoldConfig,
     unit: usize,
-    period_s: f64,
     /// Consecutive ticks this unit's own U_{k−1} was beyond tolerance.
     beyond_ticks: u32,
     /// F_k per unit, reused every tick.
@@ -82,7 +77,7 @@ impl ActionPipeline {
         team_size: usize,
         unit: usize,
     ) -> Result<Self, ClampError> {
-        let clamp = Clamp::new(model.clone(), config, period_s, team_size)?;
+        let clamp = Clamp::new(model, config, period_s, team_size)?;
         if unit >= team_size {
             return Err(ClampError::UnitCount {
                 what: "unit index",
@@ -92,11 +87,8 @@ impl ActionPipeline {
         }
         Ok(ActionPipeline {
             clamp,
-            model,
-            tolerances: config.tolerances,
             hold: config.hold,
             unit,
-            period_s,
             beyond_ticks: 0,
             targets: vec![UnitCommand::default(); team_size],
         })
@@ -147,7 +139,9 @@ impl ActionPipeline {
         let hold = match (hold, input.increment) {
             (Some(reason), _) => Some(reason),
             (None, Some(inc)) => {
-                self.targets[own] = inc.map.target(self.model.spec(), previous, inc.delta);
+                self.targets[own] = inc
+                    .map
+                    .target(self.clamp.model().spec(), previous, inc.delta);
                 None
             }
             (None, None) => Some(HoldReason::Idle),
@@ -171,31 +165,17 @@ impl ActionPipeline {
         })
     }
 
-    /// d of this unit alone between the image of U_{k−1} (base moved one period under its
-    /// wheel command, arm by FK) and the sensed state: the clamp's T(0) term for this unit.
+    /// d of this unit alone between the image of U_{k−1} and the sensed state: the clamp's
+    /// T(0) term for this unit.
     fn tracking_distance(
         &self,
         sensed: &UnitState,
         previous: &UnitCommand,
     ) -> Result<f64, ClampError> {
-        let y = UnitPoses {
-            arm: self
-                .model
-                .arm_world_pose(&sensed.base_pose, &sensed.arm.position_rad)?,
-            base_xy_m: Vector2::new(sensed.base_pose.x_m, sensed.base_pose.y_m),
-        };
-        let base = self.model.spec().integrate_base(
-            &sensed.base_pose,
-            &previous.wheel_velocity_radps,
-            self.period_s,
-        );
-        let x = UnitPoses {
-            arm: self
-                .model
-                .arm_world_pose(&base, &previous.arm_position_rad)?,
-            base_xy_m: Vector2::new(base.x_m, base.y_m),
-        };
-        let (arm, base) = x.distances(&y, &self.tolerances);
+        let model = self.clamp.model();
+        let x = model.command_image(sensed, previous, self.clamp.control_period_s())?;
+        let y = model.sensed_image(sensed)?;
+        let (arm, base) = x.distances(&y, self.clamp.tolerances());
         Ok(arm.max(base))
     }
 }

@@ -390,7 +390,7 @@ impl Onboard {
         self.previous_all[self.unit] = self.previous;
 
         let mut obs = [0.0; ACTOR_OBS_DIM];
-        let goal = self.goal(now_us);
+        let mut goal = self.goal(now_us);
         let mut observed = self.observe(&goal, &mut obs);
         let lift_estimate_m = if observed {
             ObservationView(&obs).lift_estimate_m()
@@ -418,12 +418,14 @@ impl Onboard {
         if decision.phase != before {
             // A new phase episode has new goals (and Lift a new rest grasp): observe again.
             self.begin_phase(decision.phase, now_us, &own);
-            observed = self.observe(&self.goal(now_us), &mut obs);
+            goal = self.goal(now_us);
+            observed = self.observe(&goal, &mut obs);
         }
         let mut delta = [0.0; UNIT_ACTION_DIM];
         let (hold, map) = self.increment(
             &decision,
             now_us,
+            &goal,
             &own,
             observed.then_some(&obs),
             &mut delta,
@@ -573,6 +575,7 @@ impl Onboard {
         &mut self,
         decision: &Decision,
         now_us: u64,
+        goal: &PhaseGoal,
         own: &UnitState,
         obs: Option<&[f64; ACTOR_OBS_DIM]>,
         delta: &mut [f64; UNIT_ACTION_DIM],
@@ -581,7 +584,6 @@ impl Onboard {
             Directive::Hold(reason) => return (Some(reason), None),
             Directive::Run(phase) => phase,
         };
-        let goal = self.goal(now_us);
         let profile = self.tasks.profile();
         let phase_time_s = now_us.saturating_sub(self.episode.start_us) as f64 * 1e-6;
         let failed = match (&mut self.controller, policy_slot(phase), obs) {
@@ -603,7 +605,7 @@ impl Onboard {
                         reference,
                         own,
                         phase_start_base: &self.episode.start_base,
-                        goal: &goal,
+                        goal,
                         profile: &profile,
                         previous: &self.previous,
                     };
