@@ -434,6 +434,13 @@ struct DeployedCases {
     clamp: Value,
     max_grasp_force_n: f64,
     mean_grasp_force_n: f64,
+    /// Missions per outcome ("completed", or the first stop and its phase).
+    outcomes: std::collections::BTreeMap<String, usize>,
+    /// The episode index (the stream of `--seed` its world used) of every failed mission.
+    failed_episodes: Vec<usize>,
+    /// The largest |onboard lift estimate − true payload height| when a gripper opened: how
+    /// far the goal's ground lay from the start's (what the touchdown rule copes with), m.
+    max_ground_offset_at_release_m: f64,
 }
 
 /// The `deployed` object of one controller.
@@ -443,6 +450,12 @@ fn deployed_json(episodes: usize, d: &DeployedCases) -> Value {
         map.insert("clamp".into(), d.clamp.clone());
         map.insert("max_grasp_force_n".into(), json!(d.max_grasp_force_n));
         map.insert("mean_grasp_force_n".into(), json!(d.mean_grasp_force_n));
+        map.insert("outcomes".into(), json!(d.outcomes));
+        map.insert("failed_episodes".into(), json!(d.failed_episodes));
+        map.insert(
+            "max_ground_offset_at_release_m".into(),
+            json!(d.max_ground_offset_at_release_m),
+        );
     }
     v
 }
@@ -518,6 +531,17 @@ fn deployed_cases(
             .map(|m| m.max_grasp_force_n)
             .fold(0.0, f64::max),
         mean_grasp_force_n: sum(|m| m.mean_grasp_force_n) / n,
+        max_ground_offset_at_release_m: missions
+            .iter()
+            .filter_map(|m| m.ground_offset_at_release_m)
+            .fold(0.0, |max, o| o.abs().max(max)),
+        failed_episodes: (0..missions.len())
+            .filter(|&k| !missions[k].completed)
+            .collect(),
+        outcomes: missions.iter().fold(Default::default(), |mut counts, m| {
+            *counts.entry(m.outcome.clone()).or_default() += 1;
+            counts
+        }),
     })
 }
 

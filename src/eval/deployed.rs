@@ -17,7 +17,7 @@
 //! come from every unit's tick records.
 
 use anyhow::{Context, Result};
-use moonhaul_coord::message::{Body, Envelope, OperatorCommand, RejectCounts, Sender};
+use moonhaul_coord::message::{Body, Envelope, OperatorCommand, RejectCounts, Sender, StopReason};
 use moonhaul_coord::{HoldReason, TeamSettings};
 use moonhaul_core::state::Phase;
 use moonhaul_deploy::record::TickRecord;
@@ -66,6 +66,13 @@ pub struct DeployedMission {
     pub max_grasp_force_n: f64,
     pub mean_grasp_force_n: f64,
     pub completed: bool,
+    /// When the first gripper opened: the onboard lift estimate less the true payload height
+    /// above the ground below it, m — how far the goal's ground lies above the start's (the
+    /// touchdown's reason to exist; `None`: no gripper opened).
+    pub ground_offset_at_release_m: Option<f64>,
+    /// How the mission ended, for the failure counts of `moonhaul eval`: "completed", the
+    /// first safety stop's origin and phase, or what it lacked.
+    pub outcome: String,
 }
 
 /// Runs `run.count` seeded missions; `controller()` builds each unit's controller.
@@ -146,9 +153,16 @@ pub fn missions(
                 messages.push(out.message.clone());
                 commands[i] = output.command;
                 if output.grasp_open && state.units[i].grasp.attached {
+                    if let (None, Some(estimate)) = (
+                        mission.ground_offset_at_release_m,
+                        record.payload_height_estimate_m,
+                    ) {
+                        mission.ground_offset_at_release_m =
+                            Some(estimate - state.payload.height_m);
+                    }
                     env.release_grasp(i);
                 }
-                mission.unit_tick(record, state.units[i].grasp.attached);
+                mission.unit_tick(i, record, state.units[i].grasp.attached);
             }
             for message in &messages {
                 for (onboard, ..) in &mut units {
@@ -181,6 +195,17 @@ pub fn missions(
         let faulted = units.iter().any(|(o, ..)| o.fault().is_some());
         let released = state.units.iter().all(|u| !u.grasp.attached);
         mission.completed = seen_place && ended_at.is_some() && released && !faulted;
+        mission.outcome = if mission.completed {
+            "completed".into()
+        } else if let Some(stop) = &mission.first_stop {
+            stop.clone()
+        } else if !state.is_finite() {
+            "the simulation diverged".into()
+        } else if ended_at.is_none() {
+            format!("still in {last_phase} at {MAX_MISSION_S} s")
+        } else {
+            "ended without releasing every grasp".into()
+        };
         *slot = Some(mission.finish());
         Ok(())
     })?;
@@ -202,10 +227,30 @@ struct Tally {
     force_samples: u64,
     max_grasp_force_n: f64,
     completed: bool,
+    ground_offset_at_release_m: Option<f64>,
+    outcome: String,
+    /// The first safety stop raised by a unit itself (not one it heard), with its phase.
+    first_stop: Option<String>,
+    /// The phase of the unit's last tick, for naming where a stop happened.
+    last_phase: [Phase; UNITS],
 }
 
 impl Tally {
-    fn unit_tick(&mut self, r: &TickRecord, grasped: bool) {
+    fn unit_tick(&mut self, unit: usize, r: &TickRecord, grasped: bool) {
+        if let (None, Some(HoldReason::SafetyStop(reason))) = (&self.first_stop, r.hold) {
+            if reason.announce() && self.last_phase[unit] != Phase::Idle {
+                let why = match reason {
+                    StopReason::Fault(kind) => format!("{kind:?} fault").to_lowercase(),
+                    StopReason::PeerStale { unit } => format!("unit {unit} went stale"),
+                    StopReason::PhaseTimeout => "phase agreement timed out".into(),
+                    StopReason::PhaseMismatch { unit } => format!("unit {unit}'s phase mismatched"),
+                    StopReason::Operator | StopReason::PeerStop { .. } => unreachable!("announce"),
+                };
+                let phase = self.last_phase[unit];
+                self.first_stop = Some(format!("unit {unit} stopped in {phase}: {why}"));
+            }
+        }
+        self.last_phase[unit] = r.phase;
         if !r.phase.has_policy() {
             return;
         }
@@ -291,6 +336,55 @@ impl Tally {
                 0.0
             },
             completed: self.completed,
+            ground_offset_at_release_m: self.ground_offset_at_release_m,
+            outcome: self.outcome,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use moonhaul_coord::{GateConfig, SyncConfig};
+    use moonhaul_core::config::repo_file;
+    use moonhaul_core::scripted::MissionPlan;
+    use moonhaul_core::task_config::TaskConfig;
+    use moonhaul_deploy::unit_config::UnitConfig;
+    use moonhaul_sim::{PayloadKind, SimConfig};
+
+    /// The scripted controller through the whole deployed stack, on randomized terrain: the
+    /// goal's ground lies centimetres above or below the start's, where a resting height
+    /// measured from the start would press the arms into a tracking stop or never release.
+    #[test]
+    fn scripted_missions_touch_down_on_other_ground_and_complete() {
+        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
+        let unit = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
+        let stack = Stack {
+            team: unit.team_settings(),
+            gate: GateConfig::shipped().unwrap(),
+            sync: SyncConfig::shipped().unwrap(),
+            tasks: TaskConfig::shipped().unwrap(),
+        };
+        let plan = MissionPlan::shipped().unwrap();
+        let run = Episodes {
+            payload: PayloadKind::Box,
+            randomize: true,
+            count: 6,
+            seed: 1000,
+            threads: 0,
+        };
+        let missions = missions(&scene, &stack, &|| Ok(Controller::Scripted(plan)), run).unwrap();
+        let outcomes: Vec<&str> = missions.iter().map(|m| m.outcome.as_str()).collect();
+        assert!(outcomes.iter().all(|o| *o == "completed"), "{outcomes:?}");
+        let offsets: Vec<f64> = missions
+            .iter()
+            .map(|m| m.ground_offset_at_release_m.unwrap())
+            .collect();
+        let resting_m = stack.gate.place.payload_height_max_m;
+        assert!(
+            offsets.iter().any(|o| o.abs() > resting_m),
+            "no mission met ground further than the resting height {resting_m} m from the \
+             start's: {offsets:?}"
+        );
     }
 }

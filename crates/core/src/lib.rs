@@ -23,6 +23,7 @@
 //! - `plot_font` (feature `plot`): the bundled font of every PNG plot.
 //! - [`observation`]: a unit's actor observation o⁽ⁱ⁾, the one function training and the
 //!   onboard daemon share, and its recorded layout.
+//! - [`touchdown`]: when the ground carries the payload, from the arms' following error.
 //! - [`policy`]: the onboard policy runtime (a pure-Rust MLP loaded from safetensors).
 
 pub mod action;
@@ -41,4 +42,5 @@ pub mod seed;
 pub mod stacked;
 pub mod state;
 pub mod task_config;
+pub mod touchdown;
 pub mod unit;

@@ -55,8 +55,11 @@ pub struct MissionPlan {
     pub approach_height_m: f64,
     /// Descent speed below `approach_height_m`, m/s (the paper's touchdown speed is 0.03).
     pub touchdown_speed_mps: f64,
-    /// How far below the start height the end effectors aim when placing, so the payload
-    /// surely touches down on uneven ground, m.
+    /// How far the end effectors press once the payload rests, m: the scheduled mission aims
+    /// this far below the start height, so the payload surely touches down on uneven ground;
+    /// the onboard script descends until the chain stops, then keeps its command this far
+    /// below the sensed end effector, the press its touchdown is detected by
+    /// ([`crate::touchdown`]; more than `tasks.toml [place] contact_press_m`).
     pub place_press_m: f64,
     /// Time after release until the mission ends, s.
     pub after_release_s: f64,
@@ -272,16 +275,17 @@ impl MissionPlan {
         })
     }
 
-    /// Lift of the end effectors `t_s` into a placement that starts at `from_m`: minimum-jerk
-    /// down to `approach_height_m` over `place_duration_s`, then at `touchdown_speed_mps` down
-    /// to `place_press_m` below the rest grasp, m.
+    /// Lift of the end effectors `t_s` into a placement that starts at `from_m`, m:
+    /// minimum-jerk down to `approach_height_m` over `place_duration_s`, then on down at
+    /// `touchdown_speed_mps` (the ground under the goal may lie lower than under the start;
+    /// the caller stops the descent where the chain does).
     fn place_lift_m(&self, from_m: f64, t_s: f64) -> f64 {
         let approach = self.approach_height_m.min(from_m);
         if t_s < self.place_duration_s {
             from_m - (from_m - approach) * min_jerk(t_s / self.place_duration_s)
         } else {
             let slow = t_s - self.place_duration_s;
-            (approach - self.touchdown_speed_mps * slow).max(-self.place_press_m)
+            approach - self.touchdown_speed_mps * slow
         }
     }
 }
@@ -359,6 +363,8 @@ impl PhaseScript {
         }
         let p = &self.plan;
         let t = input.phase_time_s;
+        let sensed = ee_in_base(input.spec, &input.own.arm.position_rad)?;
+        let rest = &input.reference.ee_rest_in_base;
         let mut wheels = [0.0; WHEEL_JOINTS];
         self.lift_m = match input.phase {
             Phase::Lift => {
@@ -380,11 +386,14 @@ impl PhaseScript {
                 );
                 self.lift_m
             }
-            Phase::Place => p.place_lift_m(self.place_from_m, t),
+            // Once the ground carries the payload the end effectors stop: press on them by
+            // `place_press_m`, no more (the drives would strain and the clamp stop the team).
+            Phase::Place => p
+                .place_lift_m(self.place_from_m, t)
+                .max(sensed.translation.z - rest.translation.z - p.place_press_m),
             Phase::Idle => self.lift_m,
         };
         // Admittance: follow the chain where it moved the arm away from its last command.
-        let sensed = ee_in_base(input.spec, &input.own.arm.position_rad)?;
         let commanded = ee_in_base(input.spec, &input.previous.arm_position_rad)?;
         let g = p.comply_gain_per_tick;
         let moved = sensed.translation.vector - commanded.translation.vector;
@@ -392,7 +401,7 @@ impl PhaseScript {
         let turned = (sensed.rotation * commanded.rotation.inverse()).scaled_axis();
         let max_rad = p.comply_max_rotation_deg.to_radians();
         self.comply_rotation = (self.comply_rotation + g * turned).cap_magnitude(max_rad);
-        let mut target = input.reference.ee_rest_in_base;
+        let mut target = *rest;
         target.translation.vector +=
             Vector3::new(self.comply_xy_m.x, self.comply_xy_m.y, self.lift_m);
         target.rotation = UnitQuaternion::from_scaled_axis(self.comply_rotation) * target.rotation;

@@ -17,9 +17,13 @@ pub const UNIT_ACTION_DIM: usize = WHEEL_JOINTS + ARM_JOINTS;
 /// The mission phase m ∈ {0 Idle, 1 Lift, 2 Transport, 3 Place} of the paper's phase MDP.
 ///
 /// Exactly one phase policy is active in Lift, Transport and Place; none in Idle.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+/// A unit boots in Idle (the default).
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Phase {
+    #[default]
     Idle = 0,
     Lift = 1,
     Transport = 2,

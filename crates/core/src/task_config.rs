@@ -69,6 +69,11 @@ pub struct PlaceTask {
     pub goal_offset_m: f64,
     /// Ground contact this long opens the grasps, s.
     pub release_after_contact_s: f64,
+    /// Onboard touchdown: the height of a unit's sensed over its commanded end effector at
+    /// which the ground carries the payload, m ([`crate::touchdown`]).
+    pub contact_press_m: f64,
+    /// Time constant of the low-pass filter on that press, s.
+    pub contact_filter_s: f64,
 }
 
 /// The monolithic baseline's mission: lift, transport and place as one episode.
@@ -160,7 +165,12 @@ impl Validate for TaskConfig {
                 p.release_after_contact_s,
                 0.0,
                 p.duration_s,
-            )
+            )?;
+            // Above the loaded drives' sag and tracking lag (a few mm, tests/drives.rs), far
+            // below the clamp's 30 mm.
+            positive("contact_press_m", p.contact_press_m, 0.02)?;
+            // Up to a second: a slower touchdown signal would hold the payload pressed.
+            positive("contact_filter_s", p.contact_filter_s, 1.0)
         })
     }
 }

@@ -813,6 +813,10 @@ fn tick_schema() -> serde_json::Value {
             },
             "sensed": state,
             "payload_height_estimate_m": { "type": ["number", "null"] },
+            "press_m": {
+                "description": "The largest height of a unit's sensed over its commanded end effector, the touchdown signal, m.",
+                "type": ["number", "null"]
+            },
             "goal_distance_m": number,
             "team_sensed": { "type": "array", "items": state.clone() },
             "team_previous": { "type": "array", "items": command.clone() },
@@ -897,6 +901,7 @@ mod tests {
             tracking_d: (tick > 1).then_some(0.1),
             sensed,
             payload_height_estimate_m: (tick > 10).then_some(0.01 * tick as f64),
+            press_m: Some(-0.001),
             goal_distance_m: 2.0,
             team_sensed: vec![sensed, UnitState::default()],
             team_previous: vec![issued, UnitCommand::default()],

@@ -40,7 +40,11 @@ pub struct TickRecord {
     /// The gate's payload-height estimate (mean FK lift of the cargo over the units), m;
     /// `None` before the mission's rest grasp is captured.
     pub payload_height_estimate_m: Option<f64>,
-    /// The gate's goal distance (this unit's odometry to its phase goal), m.
+    /// The team's press, the touchdown signal (`moonhaul_core::touchdown`): the most any
+    /// unit's sensed end effector stands above its command, m.
+    pub press_m: Option<f64>,
+    /// The gate's goal distance (the payload's: the units' mean odometric offset from their
+    /// phase goals), m.
     pub goal_distance_m: f64,
     /// The clamp's inputs as this unit saw them, one entry per unit of the team: Y_k (the
     /// sensed states: its own, and each peer's newest published one) and S_k = U_{k-1} (its own

@@ -31,15 +31,17 @@
 //!   [`PhaseScript`] on the same observation inputs (own encoders and odometry, the rest
 //!   grasp, the phase goal) with the shipped map of `configs/tasks.toml`.
 //! - *Measurements for the gate.* Payload height: the mean over the units of the FK lift of
-//!   the cargo (own arm, and the peer's arm from its published joints). Goal distance: this
-//!   unit's odometric distance to its phase goal. Release: this unit's own grasp force (a wrist
+//!   the cargo (own arm, and the peer's arm from its published joints), in Place measured from
+//!   the ground found at touchdown (below). Goal distance: the payload's, as the mean of the
+//!   units' odometric offsets from their phase goals (own and published poses). Release: this unit's own grasp force (a wrist
 //!   force estimate where the hardware has one; otherwise 0 once its gripper is open and
 //!   unbounded before), entered for every unit: the barrier then commits Place → Idle only when
 //!   every unit has seen its own grasp let go.
-//! - *Opening the gripper.* The gripper is not part of u⁽ⁱ⁾. In Place, once the estimated lift
-//!   has been at or below the gate's resting height for `place.release_after_contact_s` of
-//!   ticks in total (the simulator's release rule, on the onboard estimate instead of contact
-//!   truth), the unit opens its gripper.
+//! - *Opening the gripper.* The gripper is not part of u⁽ⁱ⁾. In Place, once the team's
+//!   touchdown ([`moonhaul_core::touchdown`]: the largest height of a unit's sensed end
+//!   effector over its command, from every unit's last published state and command) has lasted
+//!   `place.release_after_contact_s` of ticks in total, the unit opens its gripper. The units
+//!   see the same signal a tick apart, so they open, and agree on Idle, together.
 //! - *Faults latch.* A drive fault, a non-finite reading or a non-finite policy output stops
 //!   the team (σ) and keeps this unit stopped, announcing why, until the daemon restarts.
 
@@ -59,6 +61,7 @@ use moonhaul_core::policy::{Policy, PolicyScratch};
 use moonhaul_core::scripted::{MissionPlan, PhaseScript, ScriptInput};
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
 use moonhaul_core::task_config::TaskConfig;
+use moonhaul_core::touchdown::{team_press_m, Touchdown};
 use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::unit::{UnitOutput, UnitReading};
 use nalgebra::Vector2;
@@ -95,10 +98,16 @@ impl Active {
     fn new(controller: Controller, tasks: &TaskConfig) -> Result<Self, OnboardError> {
         let policies = match controller {
             Controller::Scripted(plan) => {
+                if plan.place_press_m <= tasks.place.contact_press_m {
+                    return Err(OnboardError::PressBelowContact {
+                        press_m: plan.place_press_m,
+                        contact_m: tasks.place.contact_press_m,
+                    });
+                }
                 return Ok(Active::Scripted {
                     script: Box::new(PhaseScript::new(plan)),
                     map: ActionMap::from_settings(&tasks.action),
-                })
+                });
             }
             Controller::Learned(p) => *p,
         };
@@ -180,6 +189,8 @@ pub enum OnboardError {
         obs: usize,
         actions: usize,
     },
+    #[error("mission.toml place_press_m = {press_m} m must exceed tasks.toml [place] contact_press_m = {contact_m} m, or the scripted placement never shows its touchdown and never releases")]
+    PressBelowContact { press_m: f64, contact_m: f64 },
 }
 
 /// The phase episode in progress: what its goals are measured from.
@@ -203,7 +214,6 @@ pub struct Onboard {
     spec: UnitSpec,
     unit: usize,
     period_s: f64,
-    gate: GateConfig,
     tasks: TaskConfig,
     team: Team,
     pipeline: ActionPipeline,
@@ -218,7 +228,7 @@ pub struct Onboard {
     reference: Option<GraspReference>,
     episode: PhaseEpisode,
     grasp_open: bool,
-    resting_s: f64,
+    touchdown: Touchdown,
     latched_fault: Option<(FaultKind, &'static str)>,
     /// Drill: every policy output is made NaN before the tick checks it.
     corrupt_policy: bool,
@@ -231,6 +241,8 @@ pub struct Onboard {
     previous_all: Vec<UnitCommand>,
     issued_all: Vec<UnitCommand>,
     forces: Vec<f64>,
+    /// Every unit's base pose when the phase episode began (own odometry, peers' published).
+    phase_start_poses: Vec<PlanarPose>,
     message: Envelope,
 }
 
@@ -271,7 +283,6 @@ impl Onboard {
             spec: settings.spec,
             unit,
             period_s,
-            gate: settings.gate,
             tasks: settings.tasks,
             team,
             pipeline,
@@ -287,7 +298,7 @@ impl Onboard {
                 start_us: boot_us,
             },
             grasp_open: false,
-            resting_s: 0.0,
+            touchdown: Touchdown::default(),
             latched_fault: None,
             corrupt_policy: false,
             last_announce: Announcements::default(),
@@ -297,6 +308,7 @@ impl Onboard {
             previous_all: vec![UnitCommand::default(); n],
             issued_all: vec![UnitCommand::default(); n],
             forces: vec![0.0; n],
+            phase_start_poses: vec![settings.start_pose; n],
             message,
         })
     }
@@ -397,19 +409,19 @@ impl Onboard {
         } else {
             f64::NAN
         };
+        let press_m = self.team_press_m();
         let own_force = match force_n {
             Some(f) => f,
             None if self.grasp_open => 0.0,
             None => f64::INFINITY,
         };
         self.forces.fill(own_force);
-        let goal_distance_m =
-            (goal.base_goal_m - Vector2::new(self.odometry.x_m, self.odometry.y_m)).norm();
+        let goal_distance_m = self.team_goal_distance_m(now_us);
         let before = self.team.phase();
         let decision = self.team.tick(
             now_us,
             &Measurements {
-                payload_height_m: lift_estimate_m,
+                payload_height_m: self.touchdown.height_above_ground_m(lift_estimate_m),
                 goal_distance_m,
                 grasp_force_n: &self.forces,
             },
@@ -461,8 +473,12 @@ impl Onboard {
         }
         let target = *self.pipeline.target();
         self.previous = issued;
-        if decision.phase == Phase::Place && hold.is_none() {
-            self.update_release(lift_estimate_m);
+        // A measurement, not an action: counted on holds too, so the units' counts agree.
+        if decision.phase == Phase::Place {
+            let release =
+                self.touchdown
+                    .update(&self.tasks.place, press_m, lift_estimate_m, self.period_s);
+            self.grasp_open |= release;
         }
         self.last_announce = decision.announce;
         self.fill_message(now_us, decision.phase, own, issued);
@@ -477,6 +493,7 @@ impl Onboard {
         record.tracking_d = report.map(|r| r.tracking_d);
         record.sensed = own;
         record.payload_height_estimate_m = lift_estimate_m.is_finite().then_some(lift_estimate_m);
+        record.press_m = press_m.is_finite().then_some(press_m);
         record.goal_distance_m = goal_distance_m;
         record.team_sensed.clear();
         record.team_sensed.extend_from_slice(&self.sensed);
@@ -555,6 +572,10 @@ impl Onboard {
     /// A newly committed phase starts its episode (goals from the odometry now). Entering Lift
     /// starts a mission: the rest grasp is captured and the gripper is closed.
     fn begin_phase(&mut self, phase: Phase, now_us: u64, own: &UnitState) {
+        for (start, sensed) in self.phase_start_poses.iter_mut().zip(&self.sensed) {
+            *start = sensed.base_pose;
+        }
+        self.phase_start_poses[self.unit] = self.odometry;
         self.episode = PhaseEpisode {
             phase,
             start_base: self.odometry,
@@ -564,7 +585,7 @@ impl Onboard {
             let peer = self.sensed[self.peer_index()];
             self.reference = GraspReference::capture(&self.spec, own, &peer).ok();
             self.grasp_open = false;
-            self.resting_s = 0.0;
+            self.touchdown = Touchdown::default();
         }
     }
 
@@ -635,13 +656,47 @@ impl Onboard {
         (None, map)
     }
 
-    fn update_release(&mut self, lift_estimate_m: f64) {
-        if lift_estimate_m <= self.gate.place.payload_height_max_m {
-            self.resting_s += self.period_s;
+    /// The payload's distance to its goal, m: the mean over the units of each base's
+    /// odometric offset from its own phase goal (a peer's goal from its published pose when
+    /// the phase began). Every unit computes the same figure, a tick apart, so the team
+    /// agrees on the transition; one base's own distance would differ by the bases' odometry
+    /// drift, enough to split the team past the agreement window.
+    fn team_goal_distance_m(&self, now_us: u64) -> f64 {
+        let e = &self.episode;
+        let phase_s = now_us.saturating_sub(e.start_us) as f64 * 1e-6;
+        let (height_m, travel_m) = self.tasks.mission_targets(e.phase);
+        let mut offset = Vector2::zeros();
+        for (start, sensed) in self.phase_start_poses.iter().zip(&self.sensed) {
+            let goal = self
+                .tasks
+                .phase_goal(e.phase, height_m, start, travel_m, phase_s);
+            offset += goal.base_goal_m - Vector2::new(sensed.base_pose.x_m, sensed.base_pose.y_m);
         }
-        if self.resting_s >= self.tasks.place.release_after_contact_s {
-            self.grasp_open = true;
-        }
+        (offset / self.sensed.len() as f64).norm()
+    }
+
+    /// The team press from every unit's last published (sensed, issued) pair, this unit's own
+    /// included: every unit computes it from the same messages, so the units' touchdowns fire
+    /// on the same tick and they open their grippers together (each from its own latest
+    /// state, the figures differed by a tick of motion, and once the first unit let go the
+    /// other's press vanished with the load: the team split on Idle).
+    fn team_press_m(&self) -> f64 {
+        let Body::Unit(own) = &self.message.body else {
+            return f64::NAN;
+        };
+        team_press_m(
+            &self.spec,
+            (0..self.sensed.len()).map(|i| {
+                if i == self.unit {
+                    (&own.state.arm.position_rad, &own.command.arm_position_rad)
+                } else {
+                    (
+                        &self.sensed[i].arm.position_rad,
+                        &self.previous_all[i].arm_position_rad,
+                    )
+                }
+            }),
+        )
     }
 
     fn fill_message(&mut self, now_us: u64, phase: Phase, own: UnitState, issued: UnitCommand) {
@@ -684,6 +739,7 @@ impl TickRecord {
             tracking_d: None,
             sensed: UnitState::default(),
             payload_height_estimate_m: None,
+            press_m: None,
             goal_distance_m: 0.0,
             team_sensed: Vec::with_capacity(team_size),
             team_previous: Vec::with_capacity(team_size),

@@ -14,7 +14,8 @@
 //!   fixed p_B the position term would pay a policy to run ahead of v_cmd, contradicting the
 //!   paper's velocity tracking result.
 //! - *Place* starts held aloft near p_B (drawn within ±`place.goal_offset_m` of the start along
-//!   X); it ends released: the grasps open once the payload has touched the ground for
+//!   X); it ends released: the grasps open as onboard, once the units' touchdown signal
+//!   ([`moonhaul_core::touchdown`], from the sensed joints and the commands) has lasted
 //!   `release_after_contact_s` (the gripper is not part of u⁽ⁱ⁾).
 //!
 //! **Terminations** (no value beyond them): a grasp broke by overload; the payload tilted past
@@ -47,9 +48,12 @@
 use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::{ActionPipeline, Increment, PipelineInput, PipelineReport, SyncConfig};
 use moonhaul_core::action::ActionMap;
-use moonhaul_core::observation::{unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM};
+use moonhaul_core::observation::{
+    ee_in_base, unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM,
+};
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
+use moonhaul_core::touchdown::{team_press_m, Touchdown};
 use nalgebra::Vector2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -224,7 +228,7 @@ impl PhaseTask {
                 peer_base_rest: PlanarPose::default(),
             }; UNITS],
             steps: 0,
-            contact_s: 0.0,
+            touchdown: Touchdown::default(),
             released: false,
             previous: [UnitCommand::default(); UNITS],
             pipelines: self.pipelines(scene)?,
@@ -302,7 +306,7 @@ pub struct Episode {
     sensed: [UnitState; UNITS],
     reference: [GraspReference; UNITS],
     steps: u64,
-    contact_s: f64,
+    touchdown: Touchdown,
     released: bool,
     /// U_{k−1} of each unit.
     previous: [UnitCommand; UNITS],
@@ -525,6 +529,19 @@ impl Episode {
         }
     }
 
+    /// The units' mean FK lift since their rest grasps, the onboard lift estimate (NaN when
+    /// FK fails).
+    fn lift_estimate_m(&self, scene: &SceneModel) -> f64 {
+        let mut sum = 0.0;
+        for i in 0..UNITS {
+            match ee_in_base(&scene.spec, &self.sensed[i].arm.position_rad) {
+                Ok(ee) => sum += ee.translation.z - self.reference[i].ee_rest_in_base.translation.z,
+                Err(_) => return f64::NAN,
+            }
+        }
+        sum / UNITS as f64
+    }
+
     /// After the world stepped into `state`: senses, counts time, opens the grasps when a
     /// placement has touched down, and says whether the episode ended.
     pub fn advance(
@@ -542,6 +559,17 @@ impl Episode {
                 truncated: false,
             };
         }
+        // What the units published last tick, (Y_k, U_k), is what onboard touchdown reads
+        // ([`moonhaul_core::touchdown`]); taken before the new readings replace Y_k.
+        let press_m = team_press_m(
+            &scene.spec,
+            (0..UNITS).map(|i| {
+                (
+                    &self.sensed[i].arm.position_rad,
+                    &self.previous[i].arm_position_rad,
+                )
+            }),
+        );
         self.sense(task, scene, state, rng, true);
         if task.mission {
             let next = match self.phase {
@@ -561,10 +589,11 @@ impl Episode {
             }
         }
         if self.phase == Phase::Place && !self.released {
-            if state.payload.ground_contact {
-                self.contact_s += task.control_period_s;
-            }
-            if self.contact_s >= task.config.place.release_after_contact_s {
+            let lift_m = self.lift_estimate_m(scene);
+            if self
+                .touchdown
+                .update(&task.config.place, press_m, lift_m, task.control_period_s)
+            {
                 env.release_grasps();
                 env.state_into(scene, state);
                 self.released = true;
