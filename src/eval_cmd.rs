@@ -441,6 +441,8 @@ struct DeployedCases {
     /// The largest |onboard lift estimate − true payload height| when a gripper opened: how
     /// far the goal's ground lay from the start's (what the touchdown rule copes with), m.
     max_ground_offset_at_release_m: f64,
+    /// The highest true payload height above the ground at a release: a drop, m.
+    max_release_height_m: f64,
 }
 
 /// The `deployed` object of one controller.
@@ -456,6 +458,7 @@ fn deployed_json(episodes: usize, d: &DeployedCases) -> Value {
             "max_ground_offset_at_release_m".into(),
             json!(d.max_ground_offset_at_release_m),
         );
+        map.insert("max_release_height_m".into(), json!(d.max_release_height_m));
     }
     v
 }
@@ -535,6 +538,10 @@ fn deployed_cases(
             .iter()
             .filter_map(|m| m.ground_offset_at_release_m)
             .fold(0.0, |max, o| o.abs().max(max)),
+        max_release_height_m: missions
+            .iter()
+            .filter_map(|m| m.release_height_m)
+            .fold(0.0, f64::max),
         failed_episodes: (0..missions.len())
             .filter(|&k| !missions[k].completed)
             .collect(),

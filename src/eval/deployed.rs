@@ -70,6 +70,9 @@ pub struct DeployedMission {
     /// above the ground below it, m — how far the goal's ground lies above the start's (the
     /// touchdown's reason to exist; `None`: no gripper opened).
     pub ground_offset_at_release_m: Option<f64>,
+    /// The true payload height above the ground below it when the first gripper opened, m:
+    /// a release in the air drops the payload from there.
+    pub release_height_m: Option<f64>,
     /// How the mission ended, for the failure counts of `moonhaul eval`: "completed", the
     /// first safety stop's origin and phase, or what it lacked.
     pub outcome: String,
@@ -160,6 +163,9 @@ pub fn missions(
                         mission.ground_offset_at_release_m =
                             Some(estimate - state.payload.height_m);
                     }
+                    mission
+                        .release_height_m
+                        .get_or_insert(state.payload.height_m);
                     env.release_grasp(i);
                 }
                 mission.unit_tick(i, record, state.units[i].grasp.attached);
@@ -228,6 +234,7 @@ struct Tally {
     max_grasp_force_n: f64,
     completed: bool,
     ground_offset_at_release_m: Option<f64>,
+    release_height_m: Option<f64>,
     outcome: String,
     /// The first safety stop raised by a unit itself (not one it heard), with its phase.
     first_stop: Option<String>,
@@ -337,6 +344,7 @@ impl Tally {
             },
             completed: self.completed,
             ground_offset_at_release_m: self.ground_offset_at_release_m,
+            release_height_m: self.release_height_m,
             outcome: self.outcome,
         }
     }
@@ -353,8 +361,11 @@ mod tests {
     use moonhaul_sim::{PayloadKind, SimConfig};
 
     /// The scripted controller through the whole deployed stack, on randomized terrain: the
-    /// goal's ground lies centimetres above or below the start's, where a resting height
-    /// measured from the start would press the arms into a tracking stop or never release.
+    /// goal's ground lies a centimetre or two above or below the start's. Higher, a placement
+    /// aiming at a fixed depth below the start pressed the arms into a tracking stop; lower,
+    /// a resting height measured from the start opened the grippers in the air. Touchdown
+    /// from the arms' following error copes with both. (The sledge: long, light, grasped near
+    /// two joint limits, the payload that failed most.) Every release is near the ground.
     #[test]
     fn scripted_missions_touch_down_on_other_ground_and_complete() {
         let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
@@ -367,24 +378,33 @@ mod tests {
         };
         let plan = MissionPlan::shipped().unwrap();
         let run = Episodes {
-            payload: PayloadKind::Box,
+            payload: PayloadKind::Sledge,
             randomize: true,
-            count: 6,
+            count: 20,
             seed: 1000,
             threads: 0,
         };
         let missions = missions(&scene, &stack, &|| Ok(Controller::Scripted(plan)), run).unwrap();
         let outcomes: Vec<&str> = missions.iter().map(|m| m.outcome.as_str()).collect();
-        assert!(outcomes.iter().all(|o| *o == "completed"), "{outcomes:?}");
+        // The bar of `moonhaul eval` (measured over 100 missions in the README) less one.
+        let completed = outcomes.iter().filter(|o| **o == "completed").count();
+        assert!(completed >= 18, "{completed}/20: {outcomes:?}");
         let offsets: Vec<f64> = missions
             .iter()
+            .filter(|m| m.completed)
             .map(|m| m.ground_offset_at_release_m.unwrap())
             .collect();
-        let resting_m = stack.gate.place.payload_height_max_m;
+        let drop = missions
+            .iter()
+            .filter_map(|m| m.release_height_m)
+            .fold(0.0, f64::max);
+        assert!(drop < 0.06, "a gripper opened {drop} m above the ground");
+        let higher = offsets.iter().cloned().fold(f64::MIN, f64::max);
+        let lower = offsets.iter().cloned().fold(f64::MAX, f64::min);
         assert!(
-            offsets.iter().any(|o| o.abs() > resting_m),
-            "no mission met ground further than the resting height {resting_m} m from the \
-             start's: {offsets:?}"
+            higher >= 0.01 && lower <= -0.01,
+            "the seeds no longer meet ground 1 cm higher and 1 cm lower than the start's: \
+             {offsets:?}"
         );
     }
 }

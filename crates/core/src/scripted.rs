@@ -388,9 +388,13 @@ impl PhaseScript {
             }
             // Once the ground carries the payload the end effectors stop: press on them by
             // `place_press_m`, no more (the drives would strain and the clamp stop the team).
-            Phase::Place => p
+            // Only in the slow touchdown descent: in the fast one the arms lag their command
+            // by about as much, and the bound would slow it to a press the touchdown rule
+            // cannot tell from contact.
+            Phase::Place if t >= p.place_duration_s => p
                 .place_lift_m(self.place_from_m, t)
                 .max(sensed.translation.z - rest.translation.z - p.place_press_m),
+            Phase::Place => p.place_lift_m(self.place_from_m, t),
             Phase::Idle => self.lift_m,
         };
         // Admittance: follow the chain where it moved the arm away from its last command.

@@ -72,8 +72,14 @@ pub struct PlaceTask {
     /// Onboard touchdown: the height of a unit's sensed over its commanded end effector at
     /// which the ground carries the payload, m ([`crate::touchdown`]).
     pub contact_press_m: f64,
+    /// Each unit's press is measured from its mean over this first part of the placement, s.
+    pub contact_baseline_s: f64,
     /// Time constant of the low-pass filter on that press, s.
     pub contact_filter_s: f64,
+    /// Contact counts only while the team's commanded end effectors descend no faster, m/s.
+    pub contact_max_descent_mps: f64,
+    /// ... and the lift estimate is at most this high above the start's ground, m.
+    pub contact_search_height_m: f64,
 }
 
 /// The monolithic baseline's mission: lift, transport and place as one episode.
@@ -170,7 +176,19 @@ impl Validate for TaskConfig {
             // below the clamp's 30 mm.
             positive("contact_press_m", p.contact_press_m, 0.02)?;
             // Up to a second: a slower touchdown signal would hold the payload pressed.
-            positive("contact_filter_s", p.contact_filter_s, 1.0)
+            // Within the episode, and leaving time to place after it.
+            positive(
+                "contact_baseline_s",
+                p.contact_baseline_s,
+                p.duration_s / 2.0,
+            )?;
+            positive("contact_filter_s", p.contact_filter_s, 1.0)?;
+            positive("contact_max_descent_mps", p.contact_max_descent_mps, 1.0)?;
+            positive(
+                "contact_search_height_m",
+                p.contact_search_height_m,
+                p.start_height_m,
+            )
         })
     }
 }

@@ -61,7 +61,7 @@ use moonhaul_core::policy::{Policy, PolicyScratch};
 use moonhaul_core::scripted::{MissionPlan, PhaseScript, ScriptInput};
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
 use moonhaul_core::task_config::TaskConfig;
-use moonhaul_core::touchdown::{team_press_m, Touchdown};
+use moonhaul_core::touchdown::{team_arms, TeamArms, Touchdown};
 use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::unit::{UnitOutput, UnitReading};
 use nalgebra::Vector2;
@@ -409,7 +409,7 @@ impl Onboard {
         } else {
             f64::NAN
         };
-        let press_m = self.team_press_m();
+        let arms = self.team_arms();
         let own_force = match force_n {
             Some(f) => f,
             None if self.grasp_open => 0.0,
@@ -477,7 +477,7 @@ impl Onboard {
         if decision.phase == Phase::Place {
             let release =
                 self.touchdown
-                    .update(&self.tasks.place, press_m, lift_estimate_m, self.period_s);
+                    .update(&self.tasks.place, &arms, lift_estimate_m, self.period_s);
             self.grasp_open |= release;
         }
         self.last_announce = decision.announce;
@@ -493,6 +493,7 @@ impl Onboard {
         record.tracking_d = report.map(|r| r.tracking_d);
         record.sensed = own;
         record.payload_height_estimate_m = lift_estimate_m.is_finite().then_some(lift_estimate_m);
+        let press_m = arms.largest_press_m();
         record.press_m = press_m.is_finite().then_some(press_m);
         record.goal_distance_m = goal_distance_m;
         record.team_sensed.clear();
@@ -675,16 +676,16 @@ impl Onboard {
         (offset / self.sensed.len() as f64).norm()
     }
 
-    /// The team press from every unit's last published (sensed, issued) pair, this unit's own
+    /// The team's arms for touchdown from every unit's last published (sensed, issued) pair, its own
     /// included: every unit computes it from the same messages, so the units' touchdowns fire
     /// on the same tick and they open their grippers together (each from its own latest
     /// state, the figures differed by a tick of motion, and once the first unit let go the
     /// other's press vanished with the load: the team split on Idle).
-    fn team_press_m(&self) -> f64 {
+    fn team_arms(&self) -> TeamArms {
         let Body::Unit(own) = &self.message.body else {
-            return f64::NAN;
+            unreachable!("a unit's own message has a unit body");
         };
-        team_press_m(
+        team_arms(
             &self.spec,
             (0..self.sensed.len()).map(|i| {
                 if i == self.unit {

@@ -53,7 +53,7 @@ use moonhaul_core::observation::{
 };
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
-use moonhaul_core::touchdown::{team_press_m, Touchdown};
+use moonhaul_core::touchdown::{team_arms, Touchdown};
 use nalgebra::Vector2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -561,7 +561,7 @@ impl Episode {
         }
         // What the units published last tick, (Y_k, U_k), is what onboard touchdown reads
         // ([`moonhaul_core::touchdown`]); taken before the new readings replace Y_k.
-        let press_m = team_press_m(
+        let arms = team_arms(
             &scene.spec,
             (0..UNITS).map(|i| {
                 (
@@ -592,7 +592,7 @@ impl Episode {
             let lift_m = self.lift_estimate_m(scene);
             if self
                 .touchdown
-                .update(&task.config.place, press_m, lift_m, task.control_period_s)
+                .update(&task.config.place, &arms, lift_m, task.control_period_s)
             {
                 env.release_grasps();
                 env.state_into(scene, state);
