@@ -14,6 +14,10 @@ pub const ARM_JOINTS: usize = 7;
 /// Length of one unit's action u⁽ⁱ⁾: wheel velocities, then arm joint positions.
 pub const UNIT_ACTION_DIM: usize = WHEEL_JOINTS + ARM_JOINTS;
 
+/// The most units a team may have: each unit's tick evaluates the whole stacked state. The unit
+/// config's bound; fixed-size per-unit state such as [`crate::touchdown`]'s is sized by it.
+pub const MAX_TEAM_SIZE: usize = 16;
+
 /// The mission phase m ∈ {0 Idle, 1 Lift, 2 Transport, 3 Place} of the paper's phase MDP.
 ///
 /// Exactly one phase policy is active in Lift, Transport and Place; none in Idle.

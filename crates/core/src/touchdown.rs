@@ -42,8 +42,7 @@ use crate::state::ARM_JOINTS;
 use crate::task_config::PlaceTask;
 use crate::unit::UnitSpec;
 
-/// The most units a team's touchdown follows (the unit config's bound on the team size).
-pub const MAX_UNITS: usize = 16;
+use crate::state::MAX_TEAM_SIZE as MAX_UNITS;
 
 /// One tick's touchdown inputs from the team's arms.
 #[derive(Debug, Clone, Copy, PartialEq)]

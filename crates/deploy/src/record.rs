@@ -41,7 +41,7 @@ pub struct TickRecord {
     /// `None` before the mission's rest grasp is captured.
     pub payload_height_estimate_m: Option<f64>,
     /// The team's press, the touchdown signal (`moonhaul_core::touchdown`): the most any
-    /// unit's sensed end effector stands above its command, m.
+    /// unit's sensed end effector stands above its command, m; `None` outside Place.
     pub press_m: Option<f64>,
     /// The gate's goal distance (the payload's: the units' mean odometric offset from their
     /// phase goals), m.

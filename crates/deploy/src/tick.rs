@@ -409,7 +409,6 @@ impl Onboard {
         } else {
             f64::NAN
         };
-        let arms = self.team_arms();
         let own_force = match force_n {
             Some(f) => f,
             None if self.grasp_open => 0.0,
@@ -474,12 +473,17 @@ impl Onboard {
         let target = *self.pipeline.target();
         self.previous = issued;
         // A measurement, not an action: counted on holds too, so the units' counts agree.
-        if decision.phase == Phase::Place {
+        // Only while placing: it costs two FK per unit.
+        let press_m = if decision.phase == Phase::Place {
+            let arms = self.team_arms();
             let release =
                 self.touchdown
                     .update(&self.tasks.place, &arms, lift_estimate_m, self.period_s);
             self.grasp_open |= release;
-        }
+            arms.largest_press_m()
+        } else {
+            f64::NAN
+        };
         self.last_announce = decision.announce;
         self.fill_message(now_us, decision.phase, own, issued);
 
@@ -493,7 +497,6 @@ impl Onboard {
         record.tracking_d = report.map(|r| r.tracking_d);
         record.sensed = own;
         record.payload_height_estimate_m = lift_estimate_m.is_finite().then_some(lift_estimate_m);
-        let press_m = arms.largest_press_m();
         record.press_m = press_m.is_finite().then_some(press_m);
         record.goal_distance_m = goal_distance_m;
         record.team_sensed.clear();

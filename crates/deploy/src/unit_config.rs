@@ -61,8 +61,6 @@ pub struct MockSettings {
     pub arm_start_rad: [f64; ARM_JOINTS],
 }
 
-/// Most units in a team: each unit's tick evaluates the whole stacked state.
-const MAX_TEAM_SIZE: u64 = 16;
 /// Longest team name, bytes: it is part of every message's key expression.
 const MAX_TEAM_NAME_BYTES: usize = 64;
 
@@ -86,7 +84,12 @@ impl Validate for UnitConfig {
     /// Ranges here; team membership and staleness by [`TeamSettings::validate`], the one check
     /// the coordination layer also relies on.
     fn validate(&self) -> Result<(), FieldError> {
-        count("team_size", self.team_size as u64, 1, MAX_TEAM_SIZE)?;
+        count(
+            "team_size",
+            self.team_size as u64,
+            1,
+            moonhaul_core::state::MAX_TEAM_SIZE as u64,
+        )?;
         let pose = &self.start_pose;
         if ![pose.x_m, pose.y_m, pose.yaw_rad]
             .iter()

@@ -49,7 +49,7 @@ use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::{ActionPipeline, Increment, PipelineInput, PipelineReport, SyncConfig};
 use moonhaul_core::action::ActionMap;
 use moonhaul_core::observation::{
-    ee_in_base, unit_observation, GraspReference, PhaseGoal, ACTOR_OBS_DIM,
+    unit_observation, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
 };
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
@@ -529,19 +529,6 @@ impl Episode {
         }
     }
 
-    /// The units' mean FK lift since their rest grasps, the onboard lift estimate (NaN when
-    /// FK fails).
-    fn lift_estimate_m(&self, scene: &SceneModel) -> f64 {
-        let mut sum = 0.0;
-        for i in 0..UNITS {
-            match ee_in_base(&scene.spec, &self.sensed[i].arm.position_rad) {
-                Ok(ee) => sum += ee.translation.z - self.reference[i].ee_rest_in_base.translation.z,
-                Err(_) => return f64::NAN,
-            }
-        }
-        sum / UNITS as f64
-    }
-
     /// After the world stepped into `state`: senses, counts time, opens the grasps when a
     /// placement has touched down, and says whether the episode ended.
     pub fn advance(
@@ -560,16 +547,19 @@ impl Episode {
             };
         }
         // What the units published last tick, (Y_k, U_k), is what onboard touchdown reads
-        // ([`moonhaul_core::touchdown`]); taken before the new readings replace Y_k.
-        let arms = team_arms(
-            &scene.spec,
-            (0..UNITS).map(|i| {
-                (
-                    &self.sensed[i].arm.position_rad,
-                    &self.previous[i].arm_position_rad,
-                )
-            }),
-        );
+        // ([`moonhaul_core::touchdown`]); taken before the new readings replace Y_k, and only
+        // while placing (the step is the training hot path).
+        let arms = (self.phase == Phase::Place && !self.released).then(|| {
+            team_arms(
+                &scene.spec,
+                (0..UNITS).map(|i| {
+                    (
+                        &self.sensed[i].arm.position_rad,
+                        &self.previous[i].arm_position_rad,
+                    )
+                }),
+            )
+        });
         self.sense(task, scene, state, rng, true);
         if task.mission {
             let next = match self.phase {
@@ -588,8 +578,13 @@ impl Episode {
                 self.phase_start_step = self.steps;
             }
         }
-        if self.phase == Phase::Place && !self.released {
-            let lift_m = self.lift_estimate_m(scene);
+        if let (Phase::Place, false, Some(arms)) = (self.phase, self.released, arms) {
+            // The onboard estimate, from the observation as onboard.
+            let mut obs = [0.0; ACTOR_OBS_DIM];
+            let lift_m = match self.observe(task, scene, 0, &mut obs) {
+                Ok(()) => ObservationView(&obs).lift_estimate_m(),
+                Err(_) => f64::NAN,
+            };
             if self
                 .touchdown
                 .update(&task.config.place, &arms, lift_m, task.control_period_s)
