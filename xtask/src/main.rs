@@ -18,6 +18,7 @@ use std::env;
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
+use std::time::Instant;
 
 /// The PyTorch release `tch` 0.26 is built against.
 const TORCH_VERSION: &str = "2.13.0";
@@ -109,20 +110,18 @@ fn ensure_venv(venv: &Path, packages: &[&str], stamp: &str) -> Result<(), String
             format!("{e}\n(needs python3 with the venv module; on Debian: apt-get install python3-venv)")
         })?;
     }
-    eprintln!(
-        "xtask: installing {wanted} from PyPI into {} (once; several GB)",
-        venv.display()
-    );
-    run(Command::new(&python)
-        .args([
-            "-m",
-            "pip",
-            "install",
-            "--disable-pip-version-check",
-            "--progress-bar",
-            "off",
-        ])
-        .args(packages))?;
+    stage(
+        &format!(
+            "installing {wanted} from PyPI into {} (once: a download of several GB, minutes on \
+             a fast link)",
+            venv.display()
+        ),
+        || {
+            run(Command::new(&python)
+                .args(["-m", "pip", "install", "--disable-pip-version-check"])
+                .args(packages))
+        },
+    )?;
     std::fs::write(&stamp, &wanted).map_err(|e| format!("cannot write {}: {e}", stamp.display()))
 }
 
@@ -149,13 +148,33 @@ fn cargo(venv: &Path, args: &[String]) -> Result<(), String> {
 
 fn test(extra: &[String]) -> Result<(), String> {
     let venv = setup()?;
-    cargo(
-        &venv,
-        &["test".into(), "--workspace".into()]
-            .into_iter()
-            .chain(extra.iter().cloned())
-            .collect::<Vec<_>>(),
+    stage(
+        "building and running every test of the workspace (the first build compiles the \
+         whole workspace with libtorch: 10-20 min on 2 cores, much less after)",
+        || {
+            cargo(
+                &venv,
+                &["test".into(), "--workspace".into()]
+                    .into_iter()
+                    .chain(extra.iter().cloned())
+                    .collect::<Vec<_>>(),
+            )
+        },
     )
+}
+
+/// Runs one long step of a command, saying first what it is and how long it roughly takes,
+/// and afterwards how long it took: a first run on a fresh machine is never silent.
+fn stage(what: &str, step: impl FnOnce() -> Result<(), String>) -> Result<(), String> {
+    eprintln!("xtask: {what} ...");
+    let started = Instant::now();
+    let result = step();
+    let took = started.elapsed().as_secs_f64();
+    match &result {
+        Ok(()) => eprintln!("xtask: done in {took:.0} s"),
+        Err(_) => eprintln!("xtask: failed after {took:.0} s"),
+    }
+    result
 }
 
 /// The main job: the whole mission in simulation (flown by the scripted controller), the unit
@@ -165,14 +184,20 @@ fn demo() -> Result<(), String> {
     // No libtorch: the onboard stack and the simulator are pure Rust, so plain cargo, no venv.
     let cargo = env::var_os("CARGO").unwrap_or_else(|| OsString::from("cargo"));
     let root = workspace_root();
-    run(Command::new(&cargo).current_dir(&root).args([
-        "build",
-        "--quiet",
-        "--release",
-        "--package",
-        "moonhaul",
-        "--bins",
-    ]))?;
+    // cargo's own progress (its "Compiling" lines and bar) shows where the build is.
+    stage(
+        "building moonhaul and moonhaul-unit in release mode (a fresh machine compiles about \
+         340 crates: 6-15 min on 2 cores; seconds once built)",
+        || {
+            run(Command::new(&cargo).current_dir(&root).args([
+                "build",
+                "--release",
+                "--package",
+                "moonhaul",
+                "--bins",
+            ]))
+        },
+    )?;
     let out = root.join("runs").join("demo");
     let out = out.to_string_lossy();
     let moonhaul = |args: &[&str]| {
@@ -189,25 +214,33 @@ fn demo() -> Result<(), String> {
         all.extend_from_slice(args);
         run(Command::new(&cargo).current_dir(&root).args(all))
     };
+    eprintln!("xtask: checking the unit model assets/unit.urdf");
     moonhaul(&["urdf", "check", "assets/unit.urdf"])?;
     // The mission: three payloads, three trials each, as the paper flew them; every unit its
     // own process on the sim-backed drives, peers and operator over zenoh. The scripted IK
     // controller flies it through the same gate, action pipeline and clamp the policies use,
     // until the policies trained in that pipeline complete it (README, "The action pipeline").
-    moonhaul(&[
-        "mission",
-        "sim",
-        "--controller",
-        "scripted",
-        "--payload",
-        "box,bricks,sledge",
-        "--trials",
-        "3",
-        "--seed",
-        "1",
-        "--out",
-        &out,
-    ])?;
+    stage(
+        "the mission in simulation: 3 payloads x 3 trials, one world and two unit processes \
+         each, every trial up to 90 s of simulated time (each prints when it starts and ends)",
+        || {
+            moonhaul(&[
+                "mission",
+                "sim",
+                "--controller",
+                "scripted",
+                "--payload",
+                "box,bricks,sledge",
+                "--trials",
+                "3",
+                "--seed",
+                "1",
+                "--out",
+                &out,
+            ])
+        },
+    )?;
+    eprintln!("xtask: a unit's CAN start-up against emulated drives (2 s)");
     let can_log = format!("{out}/can.log");
     moonhaul(&[
         "can",

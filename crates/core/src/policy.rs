@@ -49,8 +49,12 @@
 //! | `obs_dim`, `action_dim` | positive decimal integers |
 //! | `hidden_sizes` | comma-separated positive integers, input side first, e.g. `256,128,64`; empty = no hidden layer |
 //! | `activation` | `elu` |
-//! | `obs_clip` (optional) | positive finite float; absent = no clipping |
+//! | `obs_clip` (optional) | finite float >= [`MIN_OBS_CLIP`] (1); absent = no clipping |
 //! | any other key | free-form (`created_by`, `train_run`, `env_steps`, ...), preserved verbatim |
+//!
+//! Every parameter is finite and within ±[`MAX_PARAMETER_ABS`], and every normalizer std at
+//! least [`MIN_OBS_STD`]: a file that would overflow the forward pass is refused at load (and
+//! by `moonhaul policy inspect`), not found out in flight.
 //!
 //! Metadata and tensor shapes must agree exactly; every violation has its own
 //! [`PolicyError`] variant naming the key or tensor (and expected vs found shape).
@@ -84,9 +88,12 @@ mod network;
 pub use error::PolicyError;
 pub use metadata::{
     Activation, PolicyMetadata, FORMAT_NAME, FORMAT_VERSION, MAX_HEADER_BYTES, MAX_HIDDEN_LAYERS,
-    MAX_VALUES,
+    MAX_VALUES, MIN_OBS_CLIP,
 };
-pub use network::{ActionAffine, Linear, ObsNormalizer, Policy, PolicyScratch, Tensor};
+pub use network::{
+    ActionAffine, Linear, ObsNormalizer, Policy, PolicyScratch, Tensor, MAX_PARAMETER_ABS,
+    MIN_OBS_STD,
+};
 
 #[cfg(test)]
 mod tests;

@@ -108,8 +108,10 @@ pub struct ArmJoints {
     pub velocity_radps: [f64; ARM_JOINTS],
 }
 
-/// A wheel base's pose in the plane of the shared world frame (Z up).
+/// A wheel base's pose in the plane of the shared world frame (Z up). Strict like every config
+/// type (`[start_pose]` of a unit config): an unknown key such as `yaw_deg` is an error.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PlanarPose {
     pub x_m: f64,
     pub y_m: f64,

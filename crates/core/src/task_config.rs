@@ -140,7 +140,9 @@ impl Validate for TaskConfig {
         })?;
         section("lift", || {
             positive("duration_s", self.lift.duration_s, MAX_EPISODE_S)?;
-            interval("goal_height_m", self.lift.goal_height_m, 0.0, 0.75)
+            interval("goal_height_m", self.lift.goal_height_m, 0.0, 0.75)?;
+            // A lift to 0 m is no lift: every drawn goal must raise the payload.
+            positive("goal_height_m[0]", self.lift.goal_height_m[0], 0.75)
         })?;
         section("transport", || {
             let t = &self.transport;
@@ -188,6 +190,26 @@ impl Validate for TaskConfig {
                 "contact_search_height_m",
                 p.contact_search_height_m,
                 p.start_height_m,
+            )
+        })?;
+        // The monolithic mission switches from lift to transport at this height: every lift
+        // goal drawn and the transport's carrying height must reach it, or the mission never
+        // leaves its lift.
+        section("mission", || {
+            let reachable = self
+                .lift
+                .goal_height_m[0]
+                .min(self.transport.start_height_m);
+            positive("lift_done_height_m", self.mission.lift_done_height_m, reachable).map_err(
+                |e| {
+                    FieldError::new(
+                        e.field,
+                        format!(
+                            "{} (at most lift.goal_height_m[0] and transport.start_height_m)",
+                            e.reason
+                        ),
+                    )
+                },
             )
         })
     }
@@ -368,6 +390,42 @@ mod tests {
                 "speed_mps = 0.2",
                 "speed_mps = 0.01",
                 "transport.duration_s",
+            ),
+            (
+                "goal_height_m = [0.3, 0.75]",
+                "goal_height_m = [0.0, 0.0]",
+                "lift.goal_height_m[0]",
+            ),
+            (
+                "goal_height_m = [0.3, 0.75]",
+                "goal_height_m = [0.3, 0.75, 0.9]",
+                "lift.goal_height_m",
+            ),
+            (
+                "lift_done_height_m = 0.27",
+                "lift_done_height_m = nan",
+                "mission.lift_done_height_m",
+            ),
+            (
+                "lift_done_height_m = 0.27",
+                "lift_done_height_m = -1.0",
+                "mission.lift_done_height_m",
+            ),
+            (
+                "lift_done_height_m = 0.27",
+                "lift_done_height_m = 0.0",
+                "mission.lift_done_height_m",
+            ),
+            (
+                "lift_done_height_m = 0.27",
+                "lift_done_height_m = 100.0",
+                "mission.lift_done_height_m",
+            ),
+            // Cross-field: above the smallest lift goal, the mission would never leave lift.
+            (
+                "lift_done_height_m = 0.27",
+                "lift_done_height_m = 0.31",
+                "mission.lift_done_height_m",
             ),
         ] {
             assert!(text.contains(from), "{from}");

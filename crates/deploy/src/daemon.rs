@@ -27,6 +27,7 @@ use moonhaul_hal::can::UnitCanConfig;
 use moonhaul_hal::mock::MockConfig;
 use moonhaul_hal::unit::{
     emulated_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput, UnitReading,
+    UNIT_JOINTS,
 };
 use tracing::{info, warn};
 
@@ -83,7 +84,17 @@ impl std::str::FromStr for Injection {
             return Err(bad());
         }
         let (kind, joint) = match what.split_once(':') {
-            Some((k, j)) => (k, Some(j.parse::<usize>().map_err(|_| bad())?)),
+            Some((k, j)) => {
+                let joint = j.parse::<usize>().map_err(|_| bad())?;
+                if joint >= UNIT_JOINTS {
+                    return Err(format!(
+                        "{s:?}: joint {joint} does not exist: a unit's joints are 0..{} (the \
+                         two wheels, then the arm base to tip)",
+                        UNIT_JOINTS - 1
+                    ));
+                }
+                (k, Some(joint))
+            }
             None => (what, None),
         };
         let what = match (kind, joint) {

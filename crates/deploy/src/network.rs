@@ -43,18 +43,14 @@ fn zerr(e: impl std::fmt::Display) -> NetworkError {
 
 /// Opens a peer session on `settings`.
 pub async fn open(settings: &NetworkSettings) -> Result<zenoh::Session, NetworkError> {
-    for endpoint in settings.connect.iter().chain(&settings.listen) {
-        let ok = endpoint.len() < 256
-            && endpoint
-                .split_once('/')
-                .is_some_and(|(proto, addr)| proto == "tcp" && !addr.is_empty());
-        if !ok {
-            return Err(NetworkError::Endpoint {
+    let connect = settings.connect.iter().map(|e| (e, false));
+    for (endpoint, listen) in connect.chain(settings.listen.iter().map(|e| (e, true))) {
+        crate::unit_config::check_endpoint(endpoint, listen).map_err(|reason| {
+            NetworkError::Endpoint {
                 endpoint: endpoint.clone(),
-                reason: "expected tcp/<host>:<port> (this build links zenoh's TCP transport only)"
-                    .into(),
-            });
-        }
+                reason,
+            }
+        })?;
     }
     let list = |v: &[String]| serde_json::to_string(v).map_err(zerr);
     let mut config = zenoh::Config::default();

@@ -58,11 +58,55 @@ pub struct MockSettings {
     /// The share of the payload's weight the mock gripper reports while closed, N.
     pub grasp_load_n: f64,
     /// Arm joint positions the mock starts at (the rest grasp), rad.
+    #[serde(deserialize_with = "config::exact_array")]
     pub arm_start_rad: [f64; ARM_JOINTS],
 }
 
 /// Longest team name, bytes: it is part of every message's key expression.
 const MAX_TEAM_NAME_BYTES: usize = 64;
+
+/// Longest zenoh endpoint accepted, bytes (a DNS name has at most 253).
+const MAX_ENDPOINT_BYTES: usize = 255;
+
+/// Checks a zenoh endpoint of this build: `tcp/<host>:<port>`, the host an IPv4 address, a
+/// bracketed IPv6 address or a DNS name, the port 1 to 65535 (0, "any free port", only where
+/// the process `listen`s). Zenoh itself accepts a malformed `connect` endpoint and keeps
+/// retrying it, leaving the process cut off from every peer; so the unit config, the daemon's
+/// `--connect`/`--listen` and [`crate::network::open`] all refuse it here, with the reason.
+pub fn check_endpoint(endpoint: &str, listen: bool) -> Result<(), String> {
+    if endpoint.len() > MAX_ENDPOINT_BYTES {
+        return Err(format!("longer than {MAX_ENDPOINT_BYTES} bytes"));
+    }
+    let Some(address) = endpoint.strip_prefix("tcp/") else {
+        return Err("expected tcp/<host>:<port> (this build links zenoh's TCP transport only)".into());
+    };
+    let Some((host, port)) = address.rsplit_once(':') else {
+        return Err("no port: expected tcp/<host>:<port>".into());
+    };
+    let host_ok = match host.strip_prefix('[').and_then(|h| h.strip_suffix(']')) {
+        Some(v6) => v6.parse::<std::net::Ipv6Addr>().is_ok(),
+        None => {
+            host.parse::<std::net::Ipv4Addr>().is_ok()
+                || (!host.is_empty()
+                    && host.split('.').all(|label| {
+                        (1..=63).contains(&label.len())
+                            && !label.starts_with('-')
+                            && !label.ends_with('-')
+                            && label.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
+                    }))
+        }
+    };
+    if !host_ok {
+        return Err(format!(
+            "host {host:?} is neither an IP address ([..] for IPv6) nor a DNS name"
+        ));
+    }
+    match port.parse::<u16>() {
+        Ok(0) if !listen => Err("port 0 can only be listened on, not connected to".into()),
+        Ok(_) if port.bytes().all(|b| b.is_ascii_digit()) => Ok(()),
+        _ => Err(format!("port {port:?} is not a number from 1 to 65535")),
+    }
+}
 
 impl Validate for UnitConfig {
     fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
@@ -106,6 +150,15 @@ impl Validate for UnitConfig {
         }
         if !mock.arm_start_rad.iter().all(|v| v.is_finite()) {
             return Err(FieldError::new("mock.arm_start_rad", "must be finite"));
+        }
+        for (list, listen, name) in [
+            (&self.network.connect, false, "network.connect"),
+            (&self.network.listen, true, "network.listen"),
+        ] {
+            for (i, endpoint) in list.iter().enumerate() {
+                check_endpoint(endpoint, listen)
+                    .map_err(|reason| FieldError::new(format!("{name}[{i}]"), format!("{endpoint:?}: {reason}")))?;
+            }
         }
         count(
             "peer_staleness_periods",
@@ -204,6 +257,20 @@ mod tests {
                 "team",
             ),
             (format!("{good}\nspeed = 3\n"), "speed"),
+            // An unknown key in a nested table, not only at the top.
+            (
+                good.replace("yaw_rad = 0.0", "yaw_rad = 0.0\nyaw_deg = 90.0"),
+                "yaw_deg",
+            ),
+            // Fixed-size arrays: an extra (or missing) joint is an error, never dropped.
+            (
+                good.replace("-2.6671]", "-2.6671, 0.5]"),
+                "mock.arm_start_rad",
+            ),
+            (
+                good.replace(", -2.6671]", "]"),
+                "mock.arm_start_rad",
+            ),
             (good.replace("team = \"moonhaul\"", ""), "team"),
             (
                 good.replace("control = \"control.toml\"", "control = \"rate.toml\""),
@@ -218,6 +285,49 @@ mod tests {
                 message.contains(field) && message.contains(".toml"),
                 "{field}: {message}"
             );
+        }
+        // Endpoints: every malformed one names its list entry and the reason.
+        for (list, endpoint, reason) in [
+            ("connect", "tcp/127.0.0.1", "no port"),
+            ("connect", "tcp/127.0.0.1:99999", "port"),
+            ("connect", "tcp/127.0.0.1:abc", "port"),
+            ("connect", "tcp/127.0.0.1:", "port"),
+            ("connect", "tcp/127.0.0.1:+80", "port"),
+            ("connect", "tcp/127.0.0.1:0", "port 0"),
+            ("connect", "udp/127.0.0.1:7447", "tcp"),
+            ("connect", "tcp/:7447", "host"),
+            ("connect", "tcp/bad host:7447", "host"),
+            ("connect", "tcp/[::1:7447", "host"),
+            ("listen", "tcp/127.0.0.1", "no port"),
+            ("listen", "tcp/127.0.0.1:65536", "port"),
+        ] {
+            let text = good.replace(
+                "connect = [\"tcp/127.0.0.1:7447\"]\nlisten = []",
+                &if list == "connect" {
+                    format!("connect = [\"tcp/127.0.0.1:7447\", {endpoint:?}]\nlisten = []")
+                } else {
+                    format!("connect = []\nlisten = [{endpoint:?}]")
+                },
+            );
+            assert_ne!(text, good);
+            let path = dir.path().join("endpoint.toml");
+            std::fs::write(&path, text).unwrap();
+            let message = UnitConfig::from_file(&path).unwrap_err().to_string();
+            let index = if list == "connect" { 1 } else { 0 };
+            assert!(
+                message.contains(&format!("network.{list}[{index}]"))
+                    && message.contains(endpoint)
+                    && message.contains(reason),
+                "{endpoint}: {message}"
+            );
+        }
+        for (endpoint, listen) in [
+            ("tcp/127.0.0.1:7447", false),
+            ("tcp/[::1]:7447", false),
+            ("tcp/robot-1.local:7447", false),
+            ("tcp/0.0.0.0:0", true),
+        ] {
+            check_endpoint(endpoint, listen).unwrap();
         }
         // The shared control rate is checked where it lives.
         std::fs::write(dir.path().join("control.toml"), "control_rate_hz = 0.0\n").unwrap();

@@ -80,9 +80,21 @@ pub enum PolicyError {
     /// A parameter is NaN or infinite (flat row-major index).
     #[error("tensor `{name}` has a non-finite value at flat index {index}")]
     NonFinite { name: String, index: usize },
-    /// An observation normalizer std entry is zero or negative.
-    #[error("obs_norm.std[{index}] is not positive")]
-    NonPositiveStd { index: usize },
+    /// A parameter's magnitude is beyond
+    /// [`MAX_PARAMETER_ABS`](super::MAX_PARAMETER_ABS) (flat row-major index).
+    #[error(
+        "tensor `{name}` has {value:e} at flat index {index}, beyond ±{:e}",
+        super::MAX_PARAMETER_ABS
+    )]
+    ParameterTooLarge {
+        name: String,
+        index: usize,
+        value: f32,
+    },
+    /// An observation normalizer std entry is below [`MIN_OBS_STD`](super::MIN_OBS_STD)
+    /// (zero, negative or vanishingly small).
+    #[error("obs_norm.std[{index}] is {value:e}, below the smallest std {:e}", super::MIN_OBS_STD)]
+    StdTooSmall { index: usize, value: f32 },
     /// [`Policy::act`](super::Policy::act) got an observation of the wrong length.
     #[error("observation has {found} values, policy expects {expected}")]
     ObsLength { expected: usize, found: usize },

@@ -38,6 +38,11 @@ const KEY_ACTION_DIM: &str = "action_dim";
 const KEY_HIDDEN_SIZES: &str = "hidden_sizes";
 const KEY_ACTIVATION: &str = "activation";
 const KEY_OBS_CLIP: &str = "obs_clip";
+
+/// Smallest `obs_clip`, in normalized units (standard deviations): a clip below one cuts off
+/// most of the observations the normalizer was fitted to, and a tiny one (1e-45) makes the
+/// network blind to its inputs. rsl_rl clips at 5 to 100.
+pub const MIN_OBS_CLIP: f32 = 1.0;
 /// Keys with a typed meaning; everything else lands in [`PolicyMetadata::extra`].
 const RESERVED_KEYS: [&str; 8] = [
     KEY_FORMAT,
@@ -273,11 +278,11 @@ impl PolicyMetadata {
             ));
         }
         if let Some(clip) = self.obs_clip {
-            if !(clip.is_finite() && clip > 0.0) {
+            if !(clip.is_finite() && clip >= MIN_OBS_CLIP) {
                 return Err(bad(
                     KEY_OBS_CLIP,
                     &clip.to_string(),
-                    "must be a positive finite number".into(),
+                    format!("must be a finite number >= {MIN_OBS_CLIP} (normalized units)"),
                 ));
             }
         }

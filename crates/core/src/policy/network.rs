@@ -15,6 +15,16 @@ pub(super) const OBS_STD: &str = "obs_norm.std";
 pub(super) const ACTION_SCALE: &str = "action.scale";
 pub(super) const ACTION_OFFSET: &str = "action.offset";
 
+/// Largest |value| of any parameter (weights, biases, normalizer mean and std, action scale
+/// and offset). Trained parameters stay within a few hundred; one beyond a million is a
+/// corrupt or hostile file, and values near `f32::MAX` overflow the first product of the
+/// forward pass, which would latch a unit's fault in flight instead of failing the load.
+pub const MAX_PARAMETER_ABS: f32 = 1e6;
+/// Smallest normalizer std. The trainer's floor is rsl_rl's ε = 1e-2; a std below 1e-6
+/// magnifies an observation's own rounding a million-fold (a denormal like 1e-45 turns every
+/// input into infinity).
+pub const MIN_OBS_STD: f32 = 1e-6;
+
 /// A dense f32 tensor, row-major: the unit every policy parameter travels in, so a shape
 /// error (a transposed weight, say) is caught even when the element count happens to match.
 #[derive(Debug, Clone, PartialEq)]
@@ -129,8 +139,14 @@ impl Policy {
         }
         check_tensor(OBS_MEAN, &obs_norm.mean, &[metadata.obs_dim])?;
         check_tensor(OBS_STD, &obs_norm.std, &[metadata.obs_dim])?;
-        if let Some(index) = obs_norm.std.data.iter().position(|&s| s <= 0.0) {
-            return Err(PolicyError::NonPositiveStd { index });
+        if let Some((index, &value)) = obs_norm
+            .std
+            .data
+            .iter()
+            .enumerate()
+            .find(|(_, &s)| !(s >= MIN_OBS_STD))
+        {
+            return Err(PolicyError::StdTooSmall { index, value });
         }
         check_tensor(ACTION_SCALE, &action.scale, &[metadata.action_dim])?;
         check_tensor(ACTION_OFFSET, &action.offset, &[metadata.action_dim])?;
@@ -265,7 +281,7 @@ impl Policy {
     }
 }
 
-/// Shape against the metadata, then finiteness.
+/// Shape against the metadata, then finiteness and magnitude ([`MAX_PARAMETER_ABS`]).
 fn check_tensor(name: &str, tensor: &Tensor, expected: &[usize]) -> Result<(), PolicyError> {
     if tensor.shape != expected {
         return Err(PolicyError::ShapeMismatch {
@@ -274,10 +290,22 @@ fn check_tensor(name: &str, tensor: &Tensor, expected: &[usize]) -> Result<(), P
             found: tensor.shape.clone(),
         });
     }
-    match tensor.data.iter().position(|v| !v.is_finite()) {
-        Some(index) => Err(PolicyError::NonFinite {
+    if let Some(index) = tensor.data.iter().position(|v| !v.is_finite()) {
+        return Err(PolicyError::NonFinite {
             name: name.to_owned(),
             index,
+        });
+    }
+    match tensor
+        .data
+        .iter()
+        .enumerate()
+        .find(|(_, v)| v.abs() > MAX_PARAMETER_ABS)
+    {
+        Some((index, &value)) => Err(PolicyError::ParameterTooLarge {
+            name: name.to_owned(),
+            index,
+            value,
         }),
         None => Ok(()),
     }

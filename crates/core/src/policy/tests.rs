@@ -210,14 +210,43 @@ fn nan_weight() {
 }
 
 #[test]
-fn zero_std() {
+fn zero_negative_or_vanishing_std() {
+    for value in [0.0, -1.0, 1e-45, 1e-7] {
+        let mut raw = RawFile::tiny();
+        raw.set_f32("obs_norm.std", 1, value);
+        let err = raw.load().unwrap_err();
+        assert!(
+            matches!(err, PolicyError::StdTooSmall { index: 1, .. }),
+            "{value}: {err}"
+        );
+    }
     let mut raw = RawFile::tiny();
-    raw.set_f32("obs_norm.std", 1, 0.0);
-    let err = raw.load().unwrap_err();
-    assert!(
-        matches!(err, PolicyError::NonPositiveStd { index: 1 }),
-        "{err}"
-    );
+    raw.set_f32("obs_norm.std", 1, MIN_OBS_STD);
+    raw.load().unwrap();
+}
+
+#[test]
+fn absurd_parameters_of_every_tensor() {
+    for name in [
+        "actor.0.weight",
+        "actor.0.bias",
+        "actor.1.weight",
+        "obs_norm.mean",
+        "obs_norm.std",
+        "action.scale",
+        "action.offset",
+    ] {
+        for value in [3e38, -3e38, 2.0 * MAX_PARAMETER_ABS] {
+            let mut raw = RawFile::tiny();
+            raw.set_f32(name, 0, value);
+            let err = raw.load().unwrap_err();
+            assert!(
+                matches!(&err, PolicyError::ParameterTooLarge { name: n, index: 0, .. } if n == name),
+                "{name} = {value}: {err}"
+            );
+            assert!(err.to_string().contains(name), "{err}");
+        }
+    }
 }
 
 #[test]
@@ -246,6 +275,8 @@ fn bad_metadata_values() {
         ("activation", "relu"),
         ("obs_clip", "-1"),
         ("obs_clip", "inf"),
+        ("obs_clip", "1e-45"),
+        ("obs_clip", "0.5"),
     ] {
         let err = RawFile::load_with_metadata(key, Some(value)).unwrap_err();
         assert!(
@@ -585,17 +616,9 @@ fn act_rejects_bad_buffers_and_inputs() {
 
 #[test]
 fn overflowing_output_is_non_finite_action() {
-    let good = tiny(None);
-    let mut action = good.action_affine().clone();
-    action.scale = Tensor::vector(vec![f32::MAX]);
-    let policy = Policy::new(
-        good.metadata().clone(),
-        good.layers().to_vec(),
-        good.obs_normalizer().clone(),
-        action,
-    )
-    .unwrap();
-    let err = act_once(&policy, &[3.0, -2.0]).unwrap_err();
+    // Parameters are bounded, observations only finite: a huge one overflows the network.
+    let policy = tiny(None);
+    let err = act_once(&policy, &[3e38, -2.0]).unwrap_err();
     assert!(
         matches!(err, PolicyError::NonFiniteAction { index: 0 }),
         "{err}"

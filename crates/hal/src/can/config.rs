@@ -161,6 +161,10 @@ impl UnitCanConfig {
 
 /// Longest time-out, s: a drive silent for a minute is gone, not slow.
 const MAX_TIMEOUT_S: f64 = 60.0;
+/// Shortest SDO time-out, s: a request and its reply are two frames (about 0.25 ms at
+/// 1 Mbit/s) plus the drive's own handling, which CiA 301 drives take up to a few ms for; a
+/// shorter time-out fails every SDO of a healthy bus.
+const MIN_SDO_TIMEOUT_S: f64 = 0.001;
 
 impl Validate for UnitCanConfig {
     fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
@@ -233,7 +237,12 @@ impl Validate for UnitCanConfig {
                 "the control period",
             )
         })?;
-        positive("sdo_timeout_s", self.sdo_timeout_s, MAX_TIMEOUT_S)?;
+        in_range(
+            "sdo_timeout_s",
+            self.sdo_timeout_s,
+            MIN_SDO_TIMEOUT_S,
+            MAX_TIMEOUT_S,
+        )?;
         positive(
             "state_change_timeout_s",
             self.state_change_timeout_s,
@@ -385,6 +394,12 @@ pub(crate) mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("sdo_timeout_s"), "{err}");
+        for tiny in ["1e-12", "0.0", "-0.05", "nan"] {
+            let err = with("sdo_timeout_s = 0.05", &format!("sdo_timeout_s = {tiny}"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("sdo_timeout_s"), "{tiny}: {err}");
+        }
         // The drives' joints are the URDF's: a rename names both.
         let err = with("joint = \"arm_joint_3\"", "joint = \"elbow\"")
             .unwrap_err()
