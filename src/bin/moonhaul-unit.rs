@@ -4,8 +4,8 @@ use clap::Parser;
 
 fn main() -> std::process::ExitCode {
     let args = moonhaul_deploy::daemon::DaemonArgs::parse();
-    moonhaul_deploy::daemon::init_tracing();
-    let runtime = match moonhaul_deploy::daemon::runtime() {
+    moonhaul_deploy::cli_support::init_tracing();
+    let runtime = match moonhaul_deploy::cli_support::runtime() {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("error: cannot start the async runtime: {e}");

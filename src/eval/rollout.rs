@@ -55,7 +55,7 @@ impl Case {
     }
 }
 
-pub use moonhaul_deploy::daemon::load_policy;
+pub use moonhaul_deploy::cli_support::load_policy;
 
 /// The row of one control tick of a phase episode.
 fn row(task: &PhaseTask, episode: &Episode, state: &EnvState) -> EpisodeRow {

@@ -24,8 +24,8 @@ pub enum MissionCommand {
 }
 
 pub fn run(cmd: MissionCommand) -> Result<()> {
-    let runtime = moonhaul_deploy::daemon::runtime().context("starting the async runtime")?;
-    moonhaul_deploy::daemon::init_tracing();
+    let runtime = moonhaul_deploy::cli_support::runtime().context("starting the async runtime")?;
+    moonhaul_deploy::cli_support::init_tracing();
     runtime.block_on(async move {
         match cmd {
             MissionCommand::Start(args) => operator::run("start", &args).await,

@@ -19,7 +19,7 @@ use moonhaul_coord::message::{
 };
 use moonhaul_coord::Validator;
 use moonhaul_core::state::Phase;
-use moonhaul_deploy::daemon::wall_us;
+use moonhaul_deploy::cli_support::wall_us;
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 
 #[derive(Debug, clap::Args)]

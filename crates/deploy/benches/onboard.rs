@@ -19,7 +19,8 @@ use moonhaul_coord::message::{Body, Envelope, OperatorCommand, Sender, PROTOCOL_
 use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
 use moonhaul_core::state::PlanarPose;
-use moonhaul_deploy::daemon::{load_policies, mock_hardware, wall_us};
+use moonhaul_deploy::cli_support::{load_policies, wall_us};
+use moonhaul_deploy::daemon::mock_hardware;
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
@@ -346,7 +347,7 @@ fn main() {
     let pings = arg("--pings", 1000);
     let trials = arg("--trials", 100);
     tick_latency(ticks);
-    let rt = moonhaul_deploy::daemon::runtime().unwrap();
+    let rt = moonhaul_deploy::cli_support::runtime().unwrap();
     rt.block_on(async {
         peer_round_trip(pings).await;
         halt_latency(trials).await;

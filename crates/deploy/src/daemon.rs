@@ -10,17 +10,15 @@
 //! operator's start arrives on still does: trials of one seed differ from the start on.) SIGINT or SIGTERM ends in a hold: the hold command is written, the drives are
 //! deactivated and the log is finished before the process exits.
 
-use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
 use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::message::{FaultKind, Sender};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
-use moonhaul_core::observation::{check_layout, ACTOR_OBS_DIM};
-use moonhaul_core::policy::Policy;
-use moonhaul_core::state::{Phase, PlanarPose, UNIT_ACTION_DIM};
+use moonhaul_core::state::PlanarPose;
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::can::UnitCanConfig;
@@ -31,11 +29,12 @@ use moonhaul_hal::unit::{
 };
 use tracing::{info, warn};
 
+use crate::cli_support::{load_policies, wall_us};
 use crate::mission_log::UnitLog;
 use crate::network::{self, Keys};
 use crate::record::TickRecord;
 use crate::sim_link::{self, SimHardware, SimSensed};
-use crate::tick::{Controller, Onboard, OnboardSettings, PhasePolicies};
+use crate::tick::{Controller, Onboard, OnboardSettings};
 use crate::unit_config::UnitConfig;
 use moonhaul_core::scripted::MissionPlan;
 
@@ -175,64 +174,6 @@ pub struct DaemonArgs {
     pub max_runtime_s: Option<f64>,
 }
 
-/// `tracing` to stderr, level from `RUST_LOG` (default info): the daemon's and the mission
-/// tools' logs.
-pub fn init_tracing() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
-}
-
-/// The async runtime the daemon and the mission tools run on: two workers, timers and I/O.
-pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-}
-
-/// Loads a phase policy and checks it is one a unit runs for `phase`: its phase, its
-/// observation layout, its action map (the increment, this build's version) and its sizes.
-pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
-    let policy =
-        Policy::from_file(path).with_context(|| format!("loading policy {}", path.display()))?;
-    let meta = policy.metadata();
-    if meta.phase != phase {
-        bail!(
-            "policy {} drives {}, not {}",
-            path.display(),
-            meta.phase,
-            phase
-        );
-    }
-    check_layout(&meta.extra).with_context(|| format!("policy {}", path.display()))?;
-    moonhaul_core::action::ActionMap::of_policy(&policy)
-        .with_context(|| format!("policy {}", path.display()))?;
-    if meta.obs_dim != ACTOR_OBS_DIM || meta.action_dim != UNIT_ACTION_DIM {
-        bail!(
-            "policy {} maps {} observations to {} actions; a unit needs {ACTOR_OBS_DIM} → \
-             {UNIT_ACTION_DIM}",
-            path.display(),
-            meta.obs_dim,
-            meta.action_dim
-        );
-    }
-    Ok(policy)
-}
-
-/// The three phase policies of a folder (`lift.safetensors`, …).
-pub fn load_policies(folder: &Path) -> Result<PhasePolicies> {
-    let load = |phase: Phase| load_policy(&folder.join(format!("{phase}.safetensors")), phase);
-    Ok(PhasePolicies {
-        lift: load(Phase::Lift)?,
-        transport: load(Phase::Transport)?,
-        place: load(Phase::Place)?,
-    })
-}
-
 /// The mock backend of a unit config (`[mock]`): mirror drives with the grasp's load share,
 /// activated by the caller.
 pub fn mock_hardware(
@@ -293,13 +234,6 @@ impl Hardware {
             }),
         }
     }
-}
-
-/// The system clock in µs since the Unix epoch (the team clock of units on real hardware).
-pub fn wall_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
 }
 
 fn offset_us(t_us: u64, offset_ms: f64) -> u64 {

@@ -3,8 +3,9 @@
 //! What runs on each robot: the onboard tick ([`tick`]), the `moonhaul-unit` daemon
 //! ([`daemon`]) over a unit-level hardware backend, peers and operator over zenoh
 //! ([`network`]), the sim-backed hardware link ([`sim_link`]) and the mission log
-//! ([`record`], [`mission_log`]).
+//! ([`record`], [`mission_log`]); what the daemon shares with the CLI ([`cli_support`]).
 
+pub mod cli_support;
 pub mod daemon;
 pub mod mission_log;
 pub mod network;

@@ -112,16 +112,7 @@ impl Active {
             Controller::Learned(p) => *p,
         };
         let slot = |phase: Phase, p: Policy| -> Result<_, OnboardError> {
-            let m = p.metadata();
-            if m.obs_dim != ACTOR_OBS_DIM || m.action_dim != UNIT_ACTION_DIM {
-                return Err(OnboardError::PolicyShape {
-                    phase,
-                    obs: m.obs_dim,
-                    actions: m.action_dim,
-                });
-            }
-            let map = ActionMap::of_policy(&p)
-                .map_err(|source| OnboardError::ActionMap { phase, source })?;
+            let map = unit_action_map(phase, &p)?;
             let scratch = p.scratch();
             Ok((p, scratch, map))
         };
@@ -131,6 +122,21 @@ impl Active {
             slot(Phase::Place, policies.place)?,
         ])))
     }
+}
+
+/// The one check that `policy` is one a unit can fly in `phase`: a unit's observation and
+/// action sizes, and an action map (the increment, this build's version). The daemon's loader
+/// and [`Onboard::new`] both call it.
+pub fn unit_action_map(phase: Phase, policy: &Policy) -> Result<ActionMap, OnboardError> {
+    let m = policy.metadata();
+    if m.obs_dim != ACTOR_OBS_DIM || m.action_dim != UNIT_ACTION_DIM {
+        return Err(OnboardError::PolicyShape {
+            phase,
+            obs: m.obs_dim,
+            actions: m.action_dim,
+        });
+    }
+    ActionMap::of_policy(policy).map_err(|source| OnboardError::ActionMap { phase, source })
 }
 
 /// Where `phase`'s policy sits in [`Active::Learned`]; Idle has none.

@@ -1,0 +1,67 @@
+//! What the daemon shares with the `moonhaul` CLI's mission tools and evaluation: their
+//! `tracing` set-up, the async runtime, the wall clock and the loading of phase policies.
+
+use std::path::Path;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use anyhow::{bail, Context, Result};
+use moonhaul_core::observation::check_layout;
+use moonhaul_core::policy::Policy;
+use moonhaul_core::state::Phase;
+
+use crate::tick::{unit_action_map, PhasePolicies};
+
+/// `tracing` to stderr, level from `RUST_LOG` (default info): the daemon's and the mission
+/// tools' logs.
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// The async runtime the daemon and the mission tools run on: two workers, timers and I/O.
+pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+}
+
+/// Loads a phase policy and checks it is one a unit runs for `phase`: its phase, its
+/// observation layout, its action map (the increment, this build's version) and its sizes.
+pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
+    let policy =
+        Policy::from_file(path).with_context(|| format!("loading policy {}", path.display()))?;
+    let meta = policy.metadata();
+    if meta.phase != phase {
+        bail!(
+            "policy {} drives {}, not {}",
+            path.display(),
+            meta.phase,
+            phase
+        );
+    }
+    check_layout(&meta.extra).with_context(|| format!("policy {}", path.display()))?;
+    unit_action_map(phase, &policy).with_context(|| format!("policy {}", path.display()))?;
+    Ok(policy)
+}
+
+/// The three phase policies of a folder (`lift.safetensors`, …).
+pub fn load_policies(folder: &Path) -> Result<PhasePolicies> {
+    let load = |phase: Phase| load_policy(&folder.join(format!("{phase}.safetensors")), phase);
+    Ok(PhasePolicies {
+        lift: load(Phase::Lift)?,
+        transport: load(Phase::Transport)?,
+        place: load(Phase::Place)?,
+    })
+}
+
+/// The system clock in µs since the Unix epoch (the team clock of units on real hardware).
+pub fn wall_us() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
