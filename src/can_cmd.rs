@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context, Result};
+use moonhaul_core::config;
+use moonhaul_core::overwrite::RunInputs;
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
 use moonhaul_hal::can::cia402::Cia402State;
 use moonhaul_hal::can::{candump, RecordingBus, UnitCanConfig};
@@ -36,6 +38,9 @@ pub enum CanCommand {
         /// only over a regular file (never over a directory, FIFO or device).
         #[arg(long, value_name = "FILE")]
         record: Option<PathBuf>,
+        /// Replace an existing `--record` file (never the unit's config or model).
+        #[arg(long, requires = "record")]
+        force: bool,
     },
 }
 
@@ -45,7 +50,8 @@ pub fn run(cmd: CanCommand) -> Result<()> {
             unit,
             seconds,
             record,
-        } => emulate(&unit, seconds, record.as_deref()),
+            force,
+        } => emulate(&unit, seconds, record.as_deref(), force),
     }
 }
 
@@ -113,7 +119,7 @@ fn check_record_path(path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn emulate(unit: &Path, seconds: f64, record: Option<&Path>) -> Result<()> {
+fn emulate(unit: &Path, seconds: f64, record: Option<&Path>, force: bool) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0 && seconds <= MAX_PATTERN_S) {
         bail!("--seconds must be a number of seconds in (0, {MAX_PATTERN_S}], got {seconds:?}");
     }
@@ -121,6 +127,14 @@ fn emulate(unit: &Path, seconds: f64, record: Option<&Path>) -> Result<()> {
         check_record_path(path)?;
     }
     let config = UnitCanConfig::from_file(unit)?;
+    if let Some(path) = record {
+        let mut inputs = RunInputs::new();
+        inputs
+            .add("CAN config", unit)
+            .add("control config", config::resolve(unit, &config.control))
+            .add("unit model", &config.unit_urdf);
+        inputs.check_output("--record", path, force)?;
+    }
     let period_s = config.sync_period_s;
     let cycles = (seconds / period_s).round();
     if cycles.is_nan() || cycles < 1.0 {

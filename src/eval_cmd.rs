@@ -22,7 +22,9 @@ use crate::eval::rollout::{self, Case, Episodes, ScriptedSegments};
 use crate::payload_arg::{self, PayloadArg};
 use moonhaul_core::action::ActionMap;
 use moonhaul_core::atomic_file;
+use moonhaul_core::overwrite::{check_output_folder, RunInputs};
 use moonhaul_core::policy::Policy;
+use moonhaul_deploy::cli_support::policy_file;
 use moonhaul_deploy::tick::{Controller, PhasePolicies};
 use moonhaul_deploy::unit_config::UnitConfig;
 
@@ -68,9 +70,12 @@ pub struct EvalArgs {
     #[arg(long, default_value = "configs/unit.toml")]
     unit: PathBuf,
     /// Write every episode's rows to DIR/<payload>/<case>/<episode>.csv (scripted ones under
-    /// DIR/scripted/).
+    /// DIR/scripted/): a new or empty folder, unless `--force`; never over an input.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Write into a `--out` folder that holds files already (an earlier run's).
+    #[arg(long, requires = "out")]
+    force: bool,
     /// Print one JSON line instead of the table.
     #[arg(long)]
     json: bool,
@@ -90,6 +95,36 @@ pub struct EvalArgs {
 }
 
 impl EvalArgs {
+    /// The files an evaluation reads: none of its outputs may replace one.
+    fn inputs(&self) -> RunInputs {
+        let mut inputs = RunInputs::new();
+        for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
+            inputs.add(
+                format!("{phase} policy"),
+                policy_file(&self.policies, phase),
+            );
+        }
+        for name in ["lift", "transport", "place", "mission"] {
+            inputs.add(
+                "training curve",
+                self.policies.join(format!("{name}.metrics.csv")),
+            );
+        }
+        inputs
+            .add("gate config", &self.gate)
+            .add("sync config", &self.sync)
+            .add("unit config", &self.unit)
+            .add("simulator config", &self.sim)
+            .add("task config", &self.tasks)
+            .add("mission plan", &self.mission);
+        for payload in &self.payload {
+            if let PayloadArg::File(path) = payload {
+                inputs.add("payload", path);
+            }
+        }
+        inputs
+    }
+
     fn episodes_of(&self, payload: PayloadKind) -> Episodes {
         Episodes {
             payload,
@@ -150,9 +185,12 @@ fn summarize(case: Case, episodes: &[Vec<EpisodeRow>]) -> Result<Value> {
     })
 }
 
-fn write_episodes(dir: &Path, episodes: &[Vec<EpisodeRow>]) -> Result<()> {
+/// `--out`'s episode CSVs in `dir`, none over an input of the run (`inputs`).
+fn write_episodes(inputs: &RunInputs, dir: &Path, episodes: &[Vec<EpisodeRow>]) -> Result<()> {
     for (k, rows) in episodes.iter().enumerate() {
-        write_csv(&dir.join(format!("{k:03}.csv")), rows)?;
+        let path = dir.join(format!("{k:03}.csv"));
+        inputs.check_output("--out", &path, true)?;
+        write_csv(&path, rows)?;
     }
     Ok(())
 }
@@ -218,6 +256,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
     if args.threads > 1024 {
         bail!("--threads {}: at most 1024", args.threads);
     }
+    if let Some(out) = &args.out {
+        check_output_folder("--out", out, args.force)?;
+    }
     let sim = SimConfig::load(&args.sim)?;
     let tasks = TaskConfig::load(&args.tasks)?;
     let sync = SyncConfig::from_file(&args.sync)?;
@@ -250,7 +291,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         if !cases.iter().any(|c| c.phase == phase) {
             continue;
         }
-        let path = args.policies.join(format!("{}.safetensors", phase.name()));
+        let path = policy_file(&args.policies, phase);
         let task = PhaseTask::new(phase, tasks, sync, &scene)?;
         let policy = rollout::load_policy(&path, phase)?;
         // The episodes bound increments by the tasks' map; a policy trained with other steps
@@ -304,7 +345,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             let episodes = rollout::learned(&scene, task, policy, case, args.episodes_of(payload))
                 .with_context(|| format!("{name} {}", case.name()))?;
             if let Some(out) = &args.out {
-                write_episodes(&out.join(name).join(case.name()), &episodes)?;
+                write_episodes(&args.inputs(), &out.join(name).join(case.name()), &episodes)?;
                 // The first payload's first episode of each phase's first case is its figure.
                 if !rollouts.iter().any(|(p, _)| *p == case.phase) {
                     if let Some(rows) = episodes.first() {
@@ -382,7 +423,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         report.insert(name.clone(), entry);
     }
     if let Some(out) = &args.out {
-        write_figures(out, &args.policies, &rollouts)?;
+        write_figures(&args.inputs(), out, &args.policies, &rollouts)?;
     }
     if args.json {
         outln!("{}", Value::Object(report))?;
@@ -396,7 +437,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
 /// `<policies>/<phase>.metrics.csv` where one is bundled, beside its rollout), and
 /// `<out>/training.png` (the phase policies' and the monolithic baseline's return and entropy
 /// curves) when `<policies>/mission.metrics.csv` is bundled.
-fn write_figures(out: &Path, policies: &Path, rollouts: &[(Phase, Vec<EpisodeRow>)]) -> Result<()> {
+fn write_figures(
+    inputs: &RunInputs,
+    out: &Path,
+    policies: &Path,
+    rollouts: &[(Phase, Vec<EpisodeRow>)],
+) -> Result<()> {
     let curve = |name: &str| {
         let path = policies.join(format!("{name}.metrics.csv"));
         path.is_file().then(|| plot::read_curve(&path)).transpose()
@@ -404,6 +450,7 @@ fn write_figures(out: &Path, policies: &Path, rollouts: &[(Phase, Vec<EpisodeRow
     for (phase, rows) in rollouts {
         let path = out.join(format!("{}.png", phase.name()));
         let points = curve(phase.name())?.unwrap_or_default();
+        inputs.check_output("--out", &path, true)?;
         atomic_file::write_with(
             &path,
             |temp| plot::phase_figure(temp, phase.name(), &points, rows),
@@ -419,6 +466,7 @@ fn write_figures(out: &Path, policies: &Path, rollouts: &[(Phase, Vec<EpisodeRow
         }
         runs.push(("monolithic baseline", mission));
         let path = out.join("training.png");
+        inputs.check_output("--out", &path, true)?;
         atomic_file::write_with(
             &path,
             |temp| plot::comparison_figure(temp, &runs),
@@ -489,6 +537,7 @@ fn deployed_cases(
             .collect();
         if let Some(out) = &args.out {
             write_episodes(
+                &args.inputs(),
                 &out.join(label)
                     .join(&name)
                     .join("deployed")
@@ -591,6 +640,7 @@ fn scripted_cases(
         for (case, episodes) in segments {
             if let Some(out) = &args.out {
                 write_episodes(
+                    &args.inputs(),
                     &out.join("scripted")
                         .join(scene.payload_name(payload))
                         .join(case.name()),

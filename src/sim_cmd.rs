@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use moonhaul_core::input::read_capped_text;
+use moonhaul_core::overwrite::RunInputs;
 use moonhaul_core::state::{Phase, UnitCommand, UNIT_ACTION_DIM};
 use moonhaul_sim::accuracy;
 use moonhaul_sim::scene::UNITS;
@@ -32,9 +33,12 @@ pub enum SimCommand {
         /// Nominal world: flat ground, mid-range friction, no command noise or joint offsets.
         #[arg(long)]
         no_randomization: bool,
-        /// Output folder (created if missing).
+        /// Output folder (created if missing) for demo.csv and demo.png.
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
+        /// Replace an existing demo.csv and demo.png (never an input of the run).
+        #[arg(long)]
+        force: bool,
         /// Simulator config.
         #[arg(long, default_value = "configs/sim.toml")]
         config: PathBuf,
@@ -80,9 +84,18 @@ pub fn run(cmd: SimCommand) -> Result<()> {
             seed,
             no_randomization,
             out,
+            force,
             config,
             mission,
-        } => demo(&payload, seed, !no_randomization, &out, &config, &mission),
+        } => demo(
+            &payload,
+            seed,
+            !no_randomization,
+            &out,
+            force,
+            &config,
+            &mission,
+        ),
         SimCommand::Bench {
             json,
             envs,
@@ -144,9 +157,20 @@ fn demo(
     seed: u64,
     randomize: bool,
     out: &Path,
+    force: bool,
     config: &Path,
     mission: &Path,
 ) -> Result<()> {
+    let mut inputs = RunInputs::new();
+    inputs
+        .add("simulator config", config)
+        .add("mission plan", mission);
+    if let PayloadArg::File(path) = payload {
+        inputs.add("payload", path);
+    }
+    for file in ["demo.csv", "demo.png"] {
+        inputs.check_output("--out", &out.join(file), force)?;
+    }
     prepare_out_dir(out)?;
     let mut scene = load_scene(config)?;
     let payload = payload_arg::resolve(&mut scene, payload)?;

@@ -100,8 +100,8 @@ fn print_check(
     writeln!(
         out,
         "checked: {inertials} inertials (finite, mass > 0, inertia positive semi-definite and \
-         within the triangle inequality), {} movable joints (finite limits, effort and velocity \
-         > 0, dynamics >= 0), {collisions} collision and {visuals} visual geometries (finite, \
+         within the triangle inequality), {} movable joints (finite position limits where they \
+         apply, effort and velocity > 0 where given, dynamics >= 0), {collisions} collision and {visuals} visual geometries (finite, \
          sizes > 0)",
         tree.dof()
     )?;
@@ -260,15 +260,23 @@ fn describe(joint: &Joint) -> String {
         )
     };
     let axis = motion.axis;
+    // Infinite: the URDF gives none (a continuous joint without `<limit>`).
+    let given = |value: f64, unit: &str| {
+        if value.is_finite() {
+            format!("{value} {unit}")
+        } else {
+            "not given".to_owned()
+        }
+    };
     format!(
-        "{}: {}, axis ({}, {}, {}), {range}, effort {} {effort}, velocity {} {velocity}",
+        "{}: {}, axis ({}, {}, {}), {range}, effort {}, velocity {}",
         joint.name,
         joint.type_name(),
         axis.x,
         axis.y,
         axis.z,
-        limits.effort,
-        limits.velocity
+        given(limits.effort, effort),
+        given(limits.velocity, velocity)
     )
 }
 

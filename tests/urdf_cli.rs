@@ -247,3 +247,81 @@ fn fk_rejects_wrong_count_and_bad_values() {
     let err = stderr(&fk(&["--tip", "nose", "--q", "0"]));
     assert!(err.contains(r#"unknown link "nose""#), "{err}");
 }
+
+/// A URDF of a base with two wheels on `continuous` joints, as `wheel` gives them (with or
+/// without a `<limit>`), and a one-joint revolute arm.
+fn wheeled(wheel_limit: &str) -> String {
+    let wheel = |side: &str, y: f64| {
+        format!(
+            r#"<link name="wheel_{side}"/>
+            <joint name="wheel_{side}_joint" type="continuous">
+                <parent link="base"/><child link="wheel_{side}"/>
+                <origin xyz="0 {y} 0.1"/><axis xyz="0 1 0"/>{wheel_limit}</joint>"#
+        )
+    };
+    format!(
+        r#"<robot name="rover"><link name="base"/>{}{}
+        <link name="arm"/>
+        <joint name="shoulder" type="revolute"><parent link="base"/><child link="arm"/>
+            <origin xyz="0 0 0.5"/><axis xyz="0 0 1"/>
+            <limit lower="-1" upper="1" effort="10" velocity="2"/></joint></robot>"#,
+        wheel("left", 0.2),
+        wheel("right", -0.2)
+    )
+}
+
+#[test]
+fn continuous_joints_without_limit_pass_check_and_fk() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, limit) in [
+        ("bare.urdf", ""),
+        ("limited.urdf", r#"<limit effort="5" velocity="20"/>"#),
+    ] {
+        let path = dir.path().join(name);
+        std::fs::write(&path, wheeled(limit)).unwrap();
+        let path = path.to_str().unwrap();
+        let out = stdout(&moonhaul(&["urdf", "check", path]));
+        if limit.is_empty() {
+            // Unknown, not zero.
+            assert!(
+                out.contains(
+                    "joint wheel_left_joint: continuous, axis (0, 1, 0), unlimited, effort not \
+                     given, velocity not given"
+                ),
+                "{out}"
+            );
+        } else {
+            assert!(out.contains("effort 5 N·m, velocity 20 rad/s"), "{out}");
+        }
+        // A wheel turned half a turn: its frame rotates about the axle, the origin stays.
+        let out = stdout(&moonhaul(&[
+            "urdf",
+            "fk",
+            path,
+            "--base",
+            "base",
+            "--tip",
+            "wheel_left",
+            "--q",
+            "3.14159",
+            "--json",
+        ]));
+        let value: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+        let t = value["translation"].as_array().unwrap();
+        let expected = [0.0, 0.2, 0.1];
+        for (got, want) in t.iter().zip(expected) {
+            assert!((got.as_f64().unwrap() - want).abs() < 1e-9, "{out}");
+        }
+    }
+    // Revolute and prismatic joints still need theirs (the URDF format requires it).
+    for kind in ["revolute", "prismatic"] {
+        let err = stderr(&check_urdf_text(&format!(
+            r#"<link name="a"/><link name="b"/>
+            <joint name="slide" type="{kind}"><parent link="a"/><child link="b"/></joint>"#
+        )));
+        assert!(
+            err.contains(r#"joint "slide" has no <limit>"#) && err.contains("bad.urdf"),
+            "{kind}: {err}"
+        );
+    }
+}

@@ -18,8 +18,10 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use moonhaul_core::overwrite::RunInputs;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand};
 use moonhaul_core::task_config::TaskConfig;
+use moonhaul_deploy::cli_support::Signals;
 use moonhaul_deploy::mission_log::WorldLog;
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::WorldFrame;
@@ -66,10 +68,13 @@ pub struct WorldArgs {
     /// The ground-truth log (MCAP).
     #[arg(long, value_name = "FILE")]
     pub log: PathBuf,
+    /// Replace an existing `--log` and `--start-file` (never an input of the run).
+    #[arg(long)]
+    pub force: bool,
     /// Where to write the units' start poses and rest arm joints (JSON) once the world is up.
     #[arg(long, value_name = "FILE")]
     pub start_file: PathBuf,
-    /// Longest mission, simulated seconds.
+    /// Longest mission, simulated seconds (at most an hour).
     #[arg(long, default_value_t = 90.0, value_name = "S")]
     pub max_seconds: f64,
     /// The simulator config.
@@ -101,13 +106,34 @@ struct UnitLink {
     gone: bool,
 }
 
-pub async fn run(args: WorldArgs) -> Result<()> {
-    if !(args.max_seconds.is_finite() && args.max_seconds > 0.0) {
+/// Longest simulated mission, s: the paper's missions take about a minute; a bound of an hour
+/// keeps a typo (`--max-seconds 1e300`) from running a world, and its trial, for ever.
+pub const MAX_MISSION_S: f64 = 3600.0;
+
+/// Checks a `--max-seconds` (the world's and `mission sim`'s).
+pub fn check_max_seconds(max_seconds: f64) -> Result<()> {
+    if !(max_seconds.is_finite() && max_seconds > 0.0 && max_seconds <= MAX_MISSION_S) {
         bail!(
-            "--max-seconds {}: must be a positive number",
-            args.max_seconds
+            "--max-seconds {max_seconds}: must be a positive number of simulated seconds, at \
+             most {MAX_MISSION_S}"
         );
     }
+    Ok(())
+}
+
+pub async fn run(args: WorldArgs) -> Result<()> {
+    // First: a signal from now on ends the world with a finished log.
+    let mut signals = Signals::install()?;
+    check_max_seconds(args.max_seconds)?;
+    let mut inputs = RunInputs::new();
+    inputs
+        .add("simulator config", &args.sim)
+        .add("task config", &args.tasks);
+    if let PayloadArg::File(path) = &args.payload {
+        inputs.add("payload", path);
+    }
+    inputs.check_output("--log", &args.log, args.force)?;
+    inputs.check_output("--start-file", &args.start_file, args.force)?;
     let sim = SimConfig::load(&args.sim).context("cannot load the simulator config")?;
     let mut scene = SceneModel::new(sim).context("cannot build the simulated scene")?;
     let kind = payload_arg::resolve(&mut scene, &args.payload)?;
@@ -148,8 +174,6 @@ pub async fn run(args: WorldArgs) -> Result<()> {
 
     let mut noise = ChaCha8Rng::seed_from_u64(moonhaul_core::seed::stream_seed(args.seed, 0x5e45));
     let mut links = [UnitLink::default(); UNITS];
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("installing the SIGTERM handler")?;
     let mut tick: u64 = 0;
     let mut began = false;
     let mut reached_place = false;
@@ -204,8 +228,8 @@ pub async fn run(args: WorldArgs) -> Result<()> {
                 RESEND.saturating_sub(last_send.map_or(Duration::ZERO, |t| t.elapsed())),
             );
             tokio::select! {
-                _ = tokio::signal::ctrl_c() => break 'mission "SIGINT".into(),
-                _ = sigterm.recv() => break 'mission "SIGTERM".into(),
+                biased;
+                why = signals.recv() => break 'mission why.into(),
                 _ = wait => {}
                 sample = commands.recv_async() => {
                     let Ok(sample) = sample else { break 'mission "the network closed".into() };

@@ -237,6 +237,8 @@ fn demo() -> Result<(), String> {
                 "1",
                 "--out",
                 &out,
+                // runs/demo/ is the demo's own folder: each run replaces the last one's files.
+                "--force",
             ])
         },
     )?;
@@ -251,6 +253,7 @@ fn demo() -> Result<(), String> {
         "2",
         "--record",
         &can_log,
+        "--force",
     ])?;
     eprintln!(
         "xtask: mission logs (MCAP, open in Foxglove) under {out}/<payload>/trial-<k>/, the \

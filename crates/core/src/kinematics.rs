@@ -22,9 +22,11 @@
 //!   parser and urdf_rs recurse once per level);
 //! - a tree has at most [`MAX_LINKS`] links and [`MAX_JOINTS`] joints, and nothing here
 //!   recurses along the kinematic tree, so a chain of that many links is fine;
-//! - movable joints have finite, positive effort and velocity limits, finite position limits
-//!   (revolute, prismatic) and finite, non-negative `<dynamics>`; links have plausible inertials
-//!   and geometry (see [`physical`] for exactly what is checked and why mass 0 is allowed).
+//! - movable joints have positive effort and velocity limits where the URDF gives them (a
+//!   continuous joint may omit `<limit>`: then they are unknown, which kinematics never needs),
+//!   finite position limits (revolute, prismatic: their `<limit>` is required) and finite,
+//!   non-negative `<dynamics>`; links have plausible inertials and geometry (see [`physical`]
+//!   for exactly what is checked and why mass 0 is allowed).
 
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -108,6 +110,12 @@ pub enum KinematicsError {
     NonFiniteOrigin { joint: String },
     #[error("joint \"{joint}\" has a zero or non-finite axis {axis:?}")]
     BadAxis { joint: String, axis: [f64; 3] },
+    /// A revolute or prismatic joint without `<limit>`, which the URDF format requires for
+    /// them (a continuous joint may omit it).
+    #[error(
+        "joint \"{joint}\" has no <limit>, which URDF requires of revolute and prismatic joints"
+    )]
+    MissingLimit { joint: String },
     #[error("joint \"{joint}\" has invalid position limits: lower {lower}, upper {upper}")]
     BadLimits {
         joint: String,
@@ -327,13 +335,22 @@ pub enum MotionKind {
 }
 
 /// Limits of a movable joint: position (rad or m; infinite for continuous joints), effort (N·m
-/// or N) and velocity (rad/s or m/s), as the URDF `<limit>` gives them.
+/// or N) and velocity (rad/s or m/s), as the URDF `<limit>` gives them. A continuous joint may
+/// omit `<limit>`: its effort and velocity are then unknown, given as infinite.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JointLimits {
     pub lower: f64,
     pub upper: f64,
     pub effort: f64,
     pub velocity: f64,
+}
+
+impl JointLimits {
+    /// Whether the URDF gave this joint's effort and velocity limits (a `<limit>` element):
+    /// what anything that drives the joint needs.
+    pub fn known_dynamics(&self) -> bool {
+        self.effort.is_finite() && self.velocity.is_finite()
+    }
 }
 
 /// The one degree of freedom of a movable joint.
@@ -355,11 +372,19 @@ impl Motion {
                 joint: joint.name.clone(),
                 axis,
             })?;
+        // urdf_rs gives an absent `<limit>` as its default (all zero); `velocity` is required
+        // in a `<limit>`, so a given one never equals it.
+        let given = joint.limit != urdf_rs::JointLimit::default();
+        if !given && kind != MotionKind::Continuous {
+            return Err(KinematicsError::MissingLimit {
+                joint: joint.name.clone(),
+            });
+        }
         let urdf_rs::JointLimit {
             mut lower,
             mut upper,
-            effort,
-            velocity,
+            mut effort,
+            mut velocity,
             ..
         } = joint.limit;
         let bad = |field, value, expected| KinematicsError::BadJointValue {
@@ -369,19 +394,27 @@ impl Motion {
             expected,
         };
         const NON_NEGATIVE: &str = "a finite number >= 0";
-        // Far above any actuator (a 1 MN·m joint, 1 km/s): beyond them the number is a typo.
-        for (field, value, max, expected) in [
-            ("limit effort", effort, MAX_EFFORT, "in (0, 1e6] N·m or N"),
-            (
-                "limit velocity",
-                velocity,
-                MAX_VELOCITY,
-                "in (0, 1000] rad/s or m/s",
-            ),
-        ] {
-            if !(value.is_finite() && value > 0.0 && value <= max) {
-                return Err(bad(field, value, expected));
+        if given {
+            // Far above any actuator (a 1 MN·m joint, 1 km/s): beyond them the number is a
+            // typo.
+            for (field, value, max, expected) in [
+                ("limit effort", effort, MAX_EFFORT, "in (0, 1e6] N·m or N"),
+                (
+                    "limit velocity",
+                    velocity,
+                    MAX_VELOCITY,
+                    "in (0, 1000] rad/s or m/s",
+                ),
+            ] {
+                if !(value.is_finite() && value > 0.0 && value <= max) {
+                    return Err(bad(field, value, expected));
+                }
             }
+        } else {
+            // A continuous joint without `<limit>` (many wheel joints): effort and velocity are
+            // unknown, not zero. Kinematics needs neither; what drives the joint must ask
+            // ([`JointLimits::known_dynamics`]).
+            (effort, velocity) = (f64::INFINITY, f64::INFINITY);
         }
         if let Some(dynamics) = &joint.dynamics {
             for (field, value) in [

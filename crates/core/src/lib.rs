@@ -8,6 +8,8 @@
 //! - [`action`]: the paper's action, a bounded increment on the previous command, and the map
 //!   a policy file records.
 //! - [`atomic_file`]: whole-or-nothing writes of every file the project produces.
+//! - [`overwrite`]: the check every output path passes: never over a run's input, never over
+//!   an existing file without `--force`.
 //! - [`config`]: the one loader of every TOML settings file, and its range checks.
 //! - [`input`]: size-capped reads of every file that comes from outside.
 //! - [`scripted`]: the scripted mission plan, its base tracking law, and the scripted
@@ -33,6 +35,7 @@ pub mod ik;
 pub mod input;
 pub mod kinematics;
 pub mod observation;
+pub mod overwrite;
 #[cfg(feature = "plot")]
 pub mod plot_font;
 pub mod policy;

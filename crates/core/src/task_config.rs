@@ -196,21 +196,21 @@ impl Validate for TaskConfig {
         // goal drawn and the transport's carrying height must reach it, or the mission never
         // leaves its lift.
         section("mission", || {
-            let reachable = self
-                .lift
-                .goal_height_m[0]
-                .min(self.transport.start_height_m);
-            positive("lift_done_height_m", self.mission.lift_done_height_m, reachable).map_err(
-                |e| {
-                    FieldError::new(
-                        e.field,
-                        format!(
-                            "{} (at most lift.goal_height_m[0] and transport.start_height_m)",
-                            e.reason
-                        ),
-                    )
-                },
+            let reachable = self.lift.goal_height_m[0].min(self.transport.start_height_m);
+            positive(
+                "lift_done_height_m",
+                self.mission.lift_done_height_m,
+                reachable,
             )
+            .map_err(|e| {
+                FieldError::new(
+                    e.field,
+                    format!(
+                        "{} (at most lift.goal_height_m[0] and transport.start_height_m)",
+                        e.reason
+                    ),
+                )
+            })
         })
     }
 }

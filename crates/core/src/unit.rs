@@ -122,6 +122,12 @@ impl UnitSpec {
                 ));
             }
             wheel_forward_sign[i] = axis.y.signum();
+            if !motion.limits.known_dynamics() {
+                return Err(wheel_error(
+                    &joint.name,
+                    "has no <limit> effort and velocity; a unit's wheel drives need them".into(),
+                ));
+            }
             wheel_limits[i] = motion.limits;
             radii[i] = wheel_radius(robot, &joint.child).ok_or_else(|| {
                 wheel_error(
@@ -191,6 +197,15 @@ impl UnitSpec {
         let arm_limits =
             <[JointLimits; ARM_JOINTS]>::try_from(arm.limits().copied().collect::<Vec<_>>())
                 .map_err(|_| arm_error("limits do not match its joints".into()))?;
+        if let Some((name, _)) = arm_joints
+            .iter()
+            .zip(&arm_limits)
+            .find(|(_, l)| !l.known_dynamics())
+        {
+            return Err(arm_error(format!(
+                "joint \"{name}\" has no <limit> effort or velocity; a unit's arm drives need them"
+            )));
+        }
 
         Ok(UnitSpec {
             base_link: root,

@@ -1,7 +1,8 @@
 //! What the daemon shares with the `moonhaul` CLI's mission tools and evaluation: their
-//! `tracing` set-up, the async runtime, the wall clock and the loading of phase policies.
+//! `tracing` set-up, the async runtime, signal handling, the wall clock and the loading of
+//! phase policies.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context, Result};
@@ -30,6 +31,38 @@ pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
         .build()
 }
 
+/// SIGINT and SIGTERM, caught from the moment [`Signals::install`] returns: a signal that
+/// arrives while a process is still setting up is kept and taken at its first wait, so it
+/// still ends in a hold and a finished log. Install it first thing.
+pub struct Signals {
+    interrupt: tokio::signal::unix::Signal,
+    terminate: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    /// Needs a tokio runtime with its signal driver (see [`runtime`]).
+    pub fn install() -> Result<Self> {
+        use tokio::signal::unix::{signal, SignalKind};
+        Ok(Signals {
+            interrupt: signal(SignalKind::interrupt()).context("installing the SIGINT handler")?,
+            terminate: signal(SignalKind::terminate()).context("installing the SIGTERM handler")?,
+        })
+    }
+
+    /// The next signal: "SIGINT" or "SIGTERM".
+    pub async fn recv(&mut self) -> &'static str {
+        tokio::select! {
+            _ = self.interrupt.recv() => "SIGINT",
+            _ = self.terminate.recv() => "SIGTERM",
+        }
+    }
+}
+
+/// `phase`'s policy file in a policies folder: `lift.safetensors`, …
+pub fn policy_file(folder: &Path, phase: Phase) -> PathBuf {
+    folder.join(format!("{phase}.safetensors"))
+}
+
 /// Loads a phase policy and checks it is one a unit runs for `phase`: its phase, its
 /// observation layout, its action map (the increment, this build's version) and its sizes.
 pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
@@ -51,7 +84,7 @@ pub fn load_policy(path: &Path, phase: Phase) -> Result<Policy> {
 
 /// The three phase policies of a folder (`lift.safetensors`, …).
 pub fn load_policies(folder: &Path) -> Result<PhasePolicies> {
-    let load = |phase: Phase| load_policy(&folder.join(format!("{phase}.safetensors")), phase);
+    let load = |phase: Phase| load_policy(&policy_file(folder, phase), phase);
     Ok(PhasePolicies {
         lift: load(Phase::Lift)?,
         transport: load(Phase::Transport)?,

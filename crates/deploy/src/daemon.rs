@@ -29,13 +29,13 @@ use moonhaul_hal::unit::{
 };
 use tracing::{info, warn};
 
-use crate::cli_support::{load_policies, wall_us};
+use crate::cli_support::{load_policies, wall_us, Signals};
 use crate::mission_log::UnitLog;
 use crate::network::{self, Keys};
 use crate::record::TickRecord;
 use crate::sim_link::{self, SimHardware, SimSensed};
 use crate::tick::{Controller, Onboard, OnboardSettings};
-use crate::unit_config::UnitConfig;
+use crate::unit_config::{check_endpoint, UnitConfig};
 use moonhaul_core::scripted::MissionPlan;
 
 /// Which hardware backend the daemon drives.
@@ -152,9 +152,13 @@ pub struct DaemonArgs {
     /// Overrides the config's zenoh endpoints to listen on (repeatable).
     #[arg(long, value_name = "ENDPOINT")]
     pub listen: Vec<String>,
-    /// Write the mission log (MCAP) here.
+    /// Write the mission log (MCAP) here: never over one of the run's inputs (config, keys,
+    /// policies, …), and over another existing file only with `--force`.
     #[arg(long, value_name = "FILE")]
     pub log: Option<PathBuf>,
+    /// Replace an existing `--log` file.
+    #[arg(long)]
+    pub force: bool,
     /// With `--hal sim`: the world steps on the wall clock; do not wait for peers.
     #[arg(long)]
     pub realtime: bool,
@@ -169,7 +173,12 @@ pub struct DaemonArgs {
     /// Inject a fault (repeatable): see [`Injection`].
     #[arg(long, value_name = "KIND[:JOINT]@S")]
     pub inject: Vec<Injection>,
-    /// Exit (in a hold) after this many seconds of unit time.
+    /// With `--hal sim`: how long to wait for the world's first reading (its start-up and the
+    /// zenoh connection on a loaded machine) before failing by name, s.
+    #[arg(long, default_value_t = 60.0, value_name = "S")]
+    pub world_wait_s: f64,
+    /// Exit (in a hold) after this many seconds of unit time (of wall time while `--hal sim`
+    /// has heard no world yet).
     #[arg(long, value_name = "S")]
     pub max_runtime_s: Option<f64>,
 }
@@ -241,8 +250,16 @@ fn offset_us(t_us: u64, offset_ms: f64) -> u64 {
     t_us.saturating_add_signed(off)
 }
 
-/// Runs the daemon until a signal or `--max-runtime-s`; every exit path finishes the log.
+/// With `--hal sim`: how long the world's link may stay silent once it spoke. A live world
+/// re-sends its reading every 50 ms while it waits for the units, so silence means it is gone.
+pub const WORLD_SILENCE: Duration = Duration::from_secs(10);
+
+/// Runs the daemon until a signal, `--max-runtime-s` or a lost world; every exit path after
+/// the start-up holds and finishes the log.
 pub async fn run(args: DaemonArgs) -> Result<()> {
+    // First: a signal from now on ends in a hold with a finished log (it waits for the loop).
+    let mut signals = Signals::install()?;
+    let started = tokio::time::Instant::now();
     // A drill offset beyond an hour is a typo, not a clock fault.
     if !(args.clock_offset_ms.is_finite() && args.clock_offset_ms.abs() <= 3.6e6) {
         bail!(
@@ -250,10 +267,17 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             args.clock_offset_ms
         );
     }
+    // Beyond a year a runtime limit is a typo (and would overflow the wall-clock deadline).
     if let Some(m) = args.max_runtime_s {
-        if !(m.is_finite() && m > 0.0) {
-            bail!("--max-runtime-s {m}: must be a positive number of seconds");
+        if !(m.is_finite() && m > 0.0 && m <= 3.2e7) {
+            bail!("--max-runtime-s {m}: must be a positive number of seconds, at most a year");
         }
+    }
+    if !(args.world_wait_s.is_finite() && args.world_wait_s > 0.0 && args.world_wait_s <= 3600.0) {
+        bail!(
+            "--world-wait-s {}: must be a positive number of seconds, at most an hour",
+            args.world_wait_s
+        );
     }
     let mut config = UnitConfig::from_file(&args.config)?;
     if let Some(i) = args.unit_index {
@@ -272,6 +296,20 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     }
     if !args.listen.is_empty() {
         net.listen = args.listen.clone();
+    }
+    for (list, listen, flag) in [
+        (&net.connect, false, "--connect"),
+        (&net.listen, true, "--listen"),
+    ] {
+        for endpoint in list {
+            check_endpoint(endpoint, listen)
+                .map_err(|reason| anyhow::anyhow!("{flag} {endpoint:?}: {reason}"))?;
+        }
+    }
+    if let Some(log) = &args.log {
+        let mut inputs = config.inputs(&args.config);
+        inputs.add("key file", &args.keys);
+        inputs.check_output("--log", log, args.force)?;
     }
     let settings = config.team_settings();
     let unit = settings.unit_index;
@@ -355,8 +393,15 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
 
     let mut interval = tokio::time::interval(period);
     interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("installing the SIGTERM handler")?;
+    // Before the world's first reading, `--max-runtime-s` counts wall time from start-up.
+    let mut world = WorldWatch {
+        last_frame: None,
+        first_by: started + Duration::from_secs_f64(args.world_wait_s),
+        first_wait_s: args.world_wait_s,
+        runtime_by: args
+            .max_runtime_s
+            .map(|m| started + Duration::from_secs_f64(m)),
+    };
     let mut reading = UnitReading::default();
     let mut record = TickRecord::for_team(settings.team_size);
     let mut frame = Vec::with_capacity(1024);
@@ -371,12 +416,18 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         lockstep,
         deferred: Vec::new(),
     };
-    let stop_reason: &str = loop {
-        // Wait for the tick: the interval, or the world's next reading.
+    let stop: Stop = loop {
+        // Wait for the tick: the interval, or the world's next reading. A signal comes first.
         let wake = tokio::select! {
-            _ = tokio::signal::ctrl_c() => Wake::Stop("SIGINT"),
-            _ = sigterm.recv() => Wake::Stop("SIGTERM"),
-            w = next_tick(&mut interval, sim_io.as_ref().map(|(s, _)| s), &mut hardware, unit) => w,
+            biased;
+            why = signals.recv() => Wake::Stop(Stop::Signal(why)),
+            w = next_tick(
+                &mut interval,
+                sim_io.as_ref().map(|(s, _)| s),
+                &mut hardware,
+                unit,
+                &mut world,
+            ) => w,
         };
         let now_us = match wake {
             Wake::Stop(why) => break why,
@@ -387,7 +438,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         let t0 = *start_us.get_or_insert(now_us);
         let elapsed_s = now_us.saturating_sub(t0) as f64 * 1e-6;
         if args.max_runtime_s.is_some_and(|m| elapsed_s >= m) {
-            break "the runtime limit";
+            break Stop::RuntimeLimit;
         }
         // Injections due.
         let mut k = 0;
@@ -416,7 +467,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
                 &mut inbox,
                 &mut onboard,
                 now_us,
-                settings.control_period_us,
+                &settings,
                 drop_peers,
             )
             .await;
@@ -493,7 +544,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     };
     info!(
         unit,
-        reason = stop_reason,
+        reason = %stop,
         "stopping: holding and flushing the log"
     );
     // The hold: wheels stopped, arm at its last command (a loaded arm stays where it is), or at
@@ -523,7 +574,28 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     }
     let _ = session.close().await;
     info!(unit, "unit daemon down");
-    Ok(())
+    match stop {
+        Stop::WorldLost(why) => bail!("{why}"),
+        Stop::Signal(_) | Stop::RuntimeLimit => Ok(()),
+    }
+}
+
+/// Why the loop ended: a signal or the runtime limit (a clean exit), or a lost world (an
+/// error, after the same hold and finished log).
+enum Stop {
+    Signal(&'static str),
+    RuntimeLimit,
+    WorldLost(String),
+}
+
+impl std::fmt::Display for Stop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Stop::Signal(s) => f.write_str(s),
+            Stop::RuntimeLimit => f.write_str("the runtime limit"),
+            Stop::WorldLost(why) => f.write_str(why),
+        }
+    }
 }
 
 /// What ends a wait for the next tick.
@@ -532,23 +604,67 @@ enum Wake {
     Tick(u64),
     /// Nothing to do (a malformed or repeated reading).
     Skip,
-    Stop(&'static str),
+    Stop(Stop),
 }
 
-/// The next tick: the interval's, or the world's next reading (the newest one waiting).
+/// The bounds of a wait on the simulated world's link.
+struct WorldWatch {
+    /// When the link last delivered a frame; `None` before the first.
+    last_frame: Option<tokio::time::Instant>,
+    /// The first reading must come by then (`--world-wait-s` after start-up).
+    first_by: tokio::time::Instant,
+    first_wait_s: f64,
+    /// `--max-runtime-s` in wall time, which holds until the world's clock takes over.
+    runtime_by: Option<tokio::time::Instant>,
+}
+
+/// The next tick: the interval's, or the world's next reading (the newest one waiting), within
+/// the bounds of `world`.
 async fn next_tick(
     interval: &mut tokio::time::Interval,
     sensed: Option<&Subscriber>,
     hardware: &mut Hardware,
     unit: usize,
+    world: &mut WorldWatch,
 ) -> Wake {
     let Some(sub) = sensed else {
         interval.tick().await;
         return Wake::Tick(wall_us());
     };
-    let Ok(sample) = sub.recv_async().await else {
-        return Wake::Stop("the world's link closed");
+    let (deadline, lost) = match world.last_frame {
+        Some(t) => (
+            t + WORLD_SILENCE,
+            format!(
+                "the simulated world fell silent: no frame on {} for {} s",
+                sub.key_expr(),
+                WORLD_SILENCE.as_secs()
+            ),
+        ),
+        None => (
+            world.first_by,
+            format!(
+                "no reading from the simulated world on {} within {} s of start-up \
+                 (--world-wait-s): is `moonhaul mission world` running and reachable at this \
+                 unit's --connect endpoints?",
+                sub.key_expr(),
+                world.first_wait_s
+            ),
+        ),
     };
+    let runtime_by = world.runtime_by.filter(|_| world.last_frame.is_none());
+    let sample = tokio::select! {
+        biased;
+        s = tokio::time::timeout_at(deadline, sub.recv_async()) => s,
+        _ = tokio::time::sleep_until(runtime_by.unwrap_or(deadline)), if runtime_by.is_some() => {
+            return Wake::Stop(Stop::RuntimeLimit);
+        }
+    };
+    let sample = match sample {
+        Ok(Ok(sample)) => sample,
+        Ok(Err(_)) => return Wake::Stop(Stop::WorldLost("the world's link closed".into())),
+        Err(_) => return Wake::Stop(Stop::WorldLost(lost)),
+    };
+    world.last_frame = Some(tokio::time::Instant::now());
     let mut newest = match SimSensed::decode(&sample.payload().to_bytes(), unit) {
         Ok(s) => s,
         Err(e) => {
@@ -652,13 +768,18 @@ async fn wait_for_peers(
     inbox: &mut Inbox,
     onboard: &mut Onboard,
     now_us: u64,
-    period_us: u64,
+    team: &moonhaul_coord::TeamSettings,
     drop: bool,
 ) {
     // Long enough for a loaded machine to deliver a live peer's message (waiting costs nothing
     // then); a dead peer makes each of the few ticks before its staleness stop wait this long.
     const PEER_WAIT: Duration = Duration::from_secs(1);
-    let wanted = now_us.saturating_sub(period_us);
+    // A peer already stale (dead, or on a clock far off: a clock drill) has been judged by the
+    // staleness rule; waiting for it would stretch every tick to PEER_WAIT.
+    if !onboard.peers_heard_since(now_us.saturating_sub(team.staleness_us())) {
+        return;
+    }
+    let wanted = now_us.saturating_sub(team.control_period_us);
     let deadline = tokio::time::Instant::now() + PEER_WAIT;
     while !drop && !onboard.peers_heard_since(wanted) {
         let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await else {

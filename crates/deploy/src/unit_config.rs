@@ -5,7 +5,8 @@
 use crate::network::NetworkSettings;
 use moonhaul_coord::{TeamError, TeamSettings};
 use moonhaul_core::config::{self, count, ConfigError, ControlConfig, FieldError, Validate};
-use moonhaul_core::state::{PlanarPose, ARM_JOINTS};
+use moonhaul_core::overwrite::RunInputs;
+use moonhaul_core::state::{Phase, PlanarPose, ARM_JOINTS};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -78,7 +79,9 @@ pub fn check_endpoint(endpoint: &str, listen: bool) -> Result<(), String> {
         return Err(format!("longer than {MAX_ENDPOINT_BYTES} bytes"));
     }
     let Some(address) = endpoint.strip_prefix("tcp/") else {
-        return Err("expected tcp/<host>:<port> (this build links zenoh's TCP transport only)".into());
+        return Err(
+            "expected tcp/<host>:<port> (this build links zenoh's TCP transport only)".into(),
+        );
     };
     let Some((host, port)) = address.rsplit_once(':') else {
         return Err("no port: expected tcp/<host>:<port>".into());
@@ -92,7 +95,9 @@ pub fn check_endpoint(endpoint: &str, listen: bool) -> Result<(), String> {
                         (1..=63).contains(&label.len())
                             && !label.starts_with('-')
                             && !label.ends_with('-')
-                            && label.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
+                            && label
+                                .bytes()
+                                .all(|b| b.is_ascii_alphanumeric() || b == b'-')
                     }))
         }
     };
@@ -112,6 +117,7 @@ impl Validate for UnitConfig {
     fn resolve(&mut self, path: &Path) -> Result<(), ConfigError> {
         self.control_rate_hz = ControlConfig::load_referenced(path, &self.control)?.control_rate_hz;
         for file in [
+            &mut self.control,
             &mut self.urdf,
             &mut self.gate,
             &mut self.sync,
@@ -156,8 +162,9 @@ impl Validate for UnitConfig {
             (&self.network.listen, true, "network.listen"),
         ] {
             for (i, endpoint) in list.iter().enumerate() {
-                check_endpoint(endpoint, listen)
-                    .map_err(|reason| FieldError::new(format!("{name}[{i}]"), format!("{endpoint:?}: {reason}")))?;
+                check_endpoint(endpoint, listen).map_err(|reason| {
+                    FieldError::new(format!("{name}[{i}]"), format!("{endpoint:?}: {reason}"))
+                })?;
             }
         }
         count(
@@ -197,6 +204,28 @@ impl UnitConfig {
     /// Reads and validates a unit config; errors name the file and the field.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
         config::load(path)
+    }
+
+    /// The files a daemon running this config (at `path`) reads, with their roles: what no
+    /// output of the run may overwrite.
+    pub fn inputs(&self, path: &Path) -> RunInputs {
+        let mut inputs = RunInputs::new();
+        inputs
+            .add("unit config", path)
+            .add("control config", &self.control)
+            .add("unit model", &self.urdf)
+            .add("gate config", &self.gate)
+            .add("sync config", &self.sync)
+            .add("task config", &self.tasks)
+            .add("mission plan", &self.mission)
+            .add("CAN config", &self.can);
+        for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
+            inputs.add(
+                format!("{phase} policy"),
+                crate::cli_support::policy_file(&self.policies, phase),
+            );
+        }
+        inputs
     }
 
     /// What the coordination layer needs of this config.
@@ -267,10 +296,7 @@ mod tests {
                 good.replace("-2.6671]", "-2.6671, 0.5]"),
                 "mock.arm_start_rad",
             ),
-            (
-                good.replace(", -2.6671]", "]"),
-                "mock.arm_start_rad",
-            ),
+            (good.replace(", -2.6671]", "]"), "mock.arm_start_rad"),
             (good.replace("team = \"moonhaul\"", ""), "team"),
             (
                 good.replace("control = \"control.toml\"", "control = \"rate.toml\""),

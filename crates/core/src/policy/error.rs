@@ -93,7 +93,10 @@ pub enum PolicyError {
     },
     /// An observation normalizer std entry is below [`MIN_OBS_STD`](super::MIN_OBS_STD)
     /// (zero, negative or vanishingly small).
-    #[error("obs_norm.std[{index}] is {value:e}, below the smallest std {:e}", super::MIN_OBS_STD)]
+    #[error(
+        "obs_norm.std[{index}] is {value:e}, below the smallest std {:e}",
+        super::MIN_OBS_STD
+    )]
     StdTooSmall { index: usize, value: f32 },
     /// [`Policy::act`](super::Policy::act) got an observation of the wrong length.
     #[error("observation has {found} values, policy expects {expected}")]

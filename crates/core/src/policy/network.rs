@@ -144,7 +144,7 @@ impl Policy {
             .data
             .iter()
             .enumerate()
-            .find(|(_, &s)| !(s >= MIN_OBS_STD))
+            .find(|(_, &s)| s < MIN_OBS_STD)
         {
             return Err(PolicyError::StdTooSmall { index, value });
         }

@@ -275,8 +275,8 @@ fn bad_metadata_values() {
         ("activation", "relu"),
         ("obs_clip", "-1"),
         ("obs_clip", "inf"),
-        ("obs_clip", "1e-45"),
         ("obs_clip", "0.5"),
+        ("obs_clip", "0.000001"),
     ] {
         let err = RawFile::load_with_metadata(key, Some(value)).unwrap_err();
         assert!(
@@ -284,6 +284,16 @@ fn bad_metadata_values() {
             "{key}={value}: {err}"
         );
     }
+}
+
+#[test]
+fn a_vanishing_obs_clip_is_refused() {
+    let err = RawFile::load_with_metadata("obs_clip", Some("1e-45")).unwrap_err();
+    assert!(
+        matches!(&err, PolicyError::BadMetadata { key, .. } if key == "obs_clip"),
+        "{err}"
+    );
+    RawFile::load_with_metadata("obs_clip", Some("1")).unwrap();
 }
 
 #[test]
@@ -714,7 +724,7 @@ proptest! {
         sizes in proptest::collection::vec(1usize..40, 2..5),
         seed in any::<u64>(),
         obs_seed in any::<u64>(),
-        clip in proptest::option::of(0.5f32..4.0),
+        clip in proptest::option::of(MIN_OBS_CLIP..4.0),
     ) {
         let policy = random_policy(&sizes, seed, clip);
         let obs: Vec<f64> = (0..sizes[0])
