@@ -545,12 +545,26 @@ async fn trial_run(
             }
         }
     }
-    tokio::select! {
-        biased;
-        why = signals.recv() => return Err(interrupt(why, &mut procs)),
-        started = operator::start(&mut console, Duration::from_secs(20)) => {
-            if let Err(e) = started {
-                eprintln!("mission sim: {e:#}");
+    // The start, unless the world ends first (its --max-seconds, a team that never starts).
+    {
+        let start = operator::start(&mut console, Duration::from_secs(20));
+        tokio::pin!(start);
+        loop {
+            tokio::select! {
+                biased;
+                why = signals.recv() => return Err(interrupt(why, &mut procs)),
+                started = &mut start => {
+                    if let Err(e) = started {
+                        eprintln!("mission sim: {e:#}");
+                    }
+                    break;
+                }
+                _ = tokio::time::sleep(Duration::from_millis(50)) => {
+                    if procs.0[0].exited()?.is_some() {
+                        eprintln!("mission sim: the world ended before the team started");
+                        break;
+                    }
+                }
             }
         }
     }
