@@ -258,3 +258,42 @@ fn record_refuses_targets_it_cannot_replace_whole() {
     }
     assert_eq!(std::fs::read_dir(&folder).unwrap().count(), 0);
 }
+
+#[test]
+fn record_never_replaces_the_units_config_and_an_old_log_only_with_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("config-link.log");
+    std::fs::hard_link(UNIT, &config).unwrap();
+    let before = std::fs::read(UNIT).unwrap();
+    let args = |record: &std::path::Path, force: bool| {
+        let mut a = vec![
+            "can".to_owned(),
+            "emulate".into(),
+            "--unit".into(),
+            UNIT.into(),
+            "--seconds".into(),
+            "0.1".into(),
+            "--record".into(),
+            record.to_str().unwrap().to_owned(),
+        ];
+        if force {
+            a.push("--force".into());
+        }
+        a
+    };
+    let run = |a: Vec<String>, needle: &str| {
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        fails_naming(&a, needle)
+    };
+    let err = run(args(&config, true), "CAN config");
+    assert!(err.contains("config-link.log"), "{err}");
+    assert_eq!(std::fs::read(UNIT).unwrap(), before);
+    let old = dir.path().join("old.log");
+    std::fs::write(&old, "old").unwrap();
+    run(args(&old, false), "--force");
+    assert_eq!(std::fs::read(&old).unwrap(), b"old");
+    let a = args(&old, true);
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    stdout(&moonhaul(&a));
+    assert_ne!(std::fs::read(&old).unwrap(), b"old");
+}

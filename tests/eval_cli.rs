@@ -145,6 +145,10 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
     assert!(deployed["max_grasp_force_n"].as_f64().unwrap() > 0.0);
     assert!(out.join("box/deployed/lift-0.3/000.csv").is_file());
     assert_eq!(recomputed, reported);
+    // A second run into the same folder would replace the first one's files: only with
+    // --force.
+    let err = fails_naming(&[&args[..], &["--out", o]].concat(), "--force");
+    assert!(err.contains(o), "{err}");
 }
 
 #[test]

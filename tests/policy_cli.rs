@@ -140,3 +140,64 @@ fn corrupted_files_fail_naming_file_and_problem() {
         assert!(stderr.contains(problem), "{stderr}");
     }
 }
+
+/// `bytes` with every f32 `from` in the tensor data replaced by `to` (the header untouched).
+fn patch_f32(bytes: &[u8], from: f32, to: f32) -> Vec<u8> {
+    let header = 8 + u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut out = bytes.to_vec();
+    let mut hits = 0;
+    for chunk in out[header..].chunks_exact_mut(4) {
+        if chunk == from.to_le_bytes() {
+            chunk.copy_from_slice(&to.to_le_bytes());
+            hits += 1;
+        }
+    }
+    assert_eq!(hits, 1, "{from} is not one value of the file");
+    out
+}
+
+/// `bytes` with metadata `key` set to `value` (the header rewritten, its length updated).
+fn patch_metadata(bytes: &[u8], key: &str, value: &str) -> Vec<u8> {
+    let len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
+    header["__metadata__"][key] = value.into();
+    let mut text = serde_json::to_vec(&header).unwrap();
+    while text.len() % 8 != 0 {
+        text.push(b' ');
+    }
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&bytes[8 + len..]);
+    out
+}
+
+#[test]
+fn absurd_numbers_fail_inspect_naming_the_tensor_or_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = small_policy().to_bytes().unwrap();
+    for (name, patched, problem) in [
+        // The last normalizer std (3.0), vanishing.
+        ("std", patch_f32(&bytes, 3.0, 1e-45), "obs_norm.std[2]"),
+        // The first action scale (2.0), near f32::MAX.
+        ("weight", patch_f32(&bytes, 2.0, 3e38), "action.scale"),
+        (
+            "clip",
+            patch_metadata(&bytes, "obs_clip", "1e-45"),
+            "obs_clip",
+        ),
+    ] {
+        let file = dir.path().join(format!("{name}.safetensors"));
+        std::fs::write(&file, patched).unwrap();
+        let out = inspect(&[], &file);
+        let stderr = String::from_utf8(out.stderr).unwrap();
+        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert!(
+            stderr.contains(&file.display().to_string()) && stderr.contains(problem),
+            "{name}: {stderr}"
+        );
+    }
+    // The unpatched file still passes: the patching is what fails it.
+    let file = dir.path().join("good.safetensors");
+    std::fs::write(&file, patch_metadata(&bytes, "obs_clip", "5")).unwrap();
+    assert!(inspect(&[], &file).status.success());
+}

@@ -321,3 +321,38 @@ fn bench_replays_a_plan_file_and_names_a_bad_one() {
     let folder = dir.path().to_str().unwrap().to_owned();
     run(bench(&folder, "1"), "not a regular file");
 }
+
+#[test]
+fn demo_never_writes_over_an_input_and_an_earlier_run_only_with_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    std::fs::create_dir(&out).unwrap();
+    // The run's own mission plan, reached through its output name.
+    std::fs::hard_link(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/configs/mission.toml"),
+        out.join("demo.csv"),
+    )
+    .unwrap();
+    let out_s = out.to_str().unwrap();
+    let args = [
+        "sim",
+        "demo",
+        "--payload",
+        "box",
+        "--out",
+        out_s,
+        "--config",
+        CONFIG,
+    ];
+    let err = fails_naming(&[&args[..], &["--force"]].concat(), "mission plan");
+    assert!(
+        err.contains("demo.csv") && err.contains("mission.toml"),
+        "{err}"
+    );
+    // An earlier run's file.
+    std::fs::remove_file(out.join("demo.csv")).unwrap();
+    std::fs::write(out.join("demo.png"), "old").unwrap();
+    let err = fails_naming(&args, "--force");
+    assert!(err.contains("demo.png"), "{err}");
+    assert_eq!(std::fs::read(out.join("demo.png")).unwrap(), b"old");
+}
