@@ -398,5 +398,14 @@ mod tests {
         assert!(spec_error(&short_arm).contains("6 movable joints"));
         let no_ee = urdf.replace("\"ee\"", "\"tool\"");
         assert!(spec_error(&no_ee).contains("ee"));
+        // A wheel joint without `<limit>` is a valid URDF, but its drive needs the limits.
+        let wheel_limit = "<limit lower=\"0\" upper=\"0\" effort=\"40\" velocity=\"10\"/>";
+        let unlimited = urdf.replacen(wheel_limit, "", 1);
+        assert_ne!(unlimited, urdf);
+        let e = spec_error(&unlimited);
+        assert!(
+            e.contains("wheel_left_joint") && e.contains("<limit>"),
+            "{e}"
+        );
     }
 }

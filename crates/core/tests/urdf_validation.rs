@@ -105,6 +105,25 @@ fn valid_physics_is_accepted() {
 }
 
 #[test]
+fn a_continuous_joint_without_limit_has_unknown_dynamics_not_zero() {
+    let wheel = tree(&joint("continuous", r#"<axis xyz="0 1 0"/>"#)).unwrap();
+    let limits = wheel.joint("j").unwrap().motion.as_ref().unwrap().limits;
+    assert!(!limits.known_dynamics(), "{limits:?}");
+    assert_eq!(
+        (limits.lower, limits.upper),
+        (f64::NEG_INFINITY, f64::INFINITY)
+    );
+    // Kinematics needs none: the wheel turns.
+    let chain = wheel.chain("a", "b").unwrap();
+    let pose = chain.forward(&[std::f64::consts::FRAC_PI_2]).unwrap();
+    assert!((pose.rotation.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    // With a `<limit>`, its values are known and checked.
+    let limited = tree(&joint("continuous", &limit("0", "0", "3", "4"))).unwrap();
+    let limits = limited.joint("j").unwrap().motion.as_ref().unwrap().limits;
+    assert!(limits.known_dynamics() && limits.effort == 3.0 && limits.velocity == 4.0);
+}
+
+#[test]
 fn non_finite_values_are_rejected_naming_the_element() {
     let cases = [
         (inertial(&inertia("nan", UNIT)), vec!["\"arm\"", "mass"]),
@@ -182,8 +201,9 @@ fn out_of_range_values_are_rejected_naming_the_element() {
             joint("prismatic", &limit("0", "1", "1", "-2")),
             vec!["\"j\"", "limit velocity is -2"],
         ),
-        // A continuous joint needs effort and velocity limits too; without `<limit>` they are 0.
-        (joint("continuous", ""), vec!["\"j\"", "limit effort is 0"]),
+        // Revolute and prismatic joints need their `<limit>` (URDF requires it of them).
+        (joint("revolute", ""), vec!["\"j\"", "has no <limit>"]),
+        (joint("prismatic", ""), vec!["\"j\"", "has no <limit>"]),
         (
             joint(
                 "continuous",
