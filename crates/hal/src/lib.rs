@@ -77,7 +77,7 @@ pub enum HalError {
 
 pub use moonhaul_core::state::JointReading;
 pub use unit::{
-    emulated_unit, emulated_unit_on, DriveUnit, FaultInjection, GraspModel, InjectedFault,
+    emulated_unit, emulated_unit_on, kernel_unit, DriveUnit, FaultInjection, GraspModel, InjectedFault,
     LoadShareGrasp, MockUnit, NoGrasp, UnitHardware, UnitOutput, UnitReading, INJECTED_EMCY_CODE,
     INJECTED_MOTOR_FAULT_CODE, UNIT_JOINTS,
 };

@@ -14,7 +14,8 @@ pub enum LogError {
     Write { path: PathBuf, error: String },
     #[error(
         "mission log {}: frame of tick {tick} has {bases} base poses, {orientations} base \
-         orientations and {phases} unit phases; the log is of a team of {units}",
+         orientations, {wheels} wheel and {arms} arm joint sets and {phases} unit phases; the \
+         log is of a team of {units}",
         path.display()
     )]
     FrameShape {
@@ -22,9 +23,13 @@ pub enum LogError {
         tick: u64,
         bases: usize,
         orientations: usize,
+        wheels: usize,
+        arms: usize,
         phases: usize,
         units: usize,
     },
+    #[error("mission log: unit model {}: {error}", path.display())]
+    Model { path: PathBuf, error: String },
     #[error(transparent)]
     Input(#[from] InputError),
     // The I/O error is part of the message, not a `source`, so a chain prints it once.

@@ -7,11 +7,15 @@ use std::io::{self, BufWriter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use foxglove::{Context, McapWriteOptions, McapWriterHandle, RawChannel, Schema};
+use foxglove::{
+    Context, McapAttachment, McapCompression, McapWriteOptions, McapWriterHandle, RawChannel,
+    Schema,
+};
 use serde::Serialize;
 
 use super::flusher::Flusher;
-use super::LogError;
+use super::inputs::LogInputs;
+use super::{LogError, FLUSH_PERIOD};
 
 /// The MCAP profile: none of ROS 1/ROS 2; plain Foxglove JSON and protobuf channels.
 const PROFILE: &str = "";
@@ -21,7 +25,13 @@ pub(super) fn log_time_ns(stamp_us: u64) -> u64 {
     stamp_us.saturating_mul(1000)
 }
 
-/// The file, its context and writer, and the thread that flushes it every [`FLUSH_PERIOD`](super::FLUSH_PERIOD).
+/// The most log time one chunk spans, µs: a chunk is finished before a record stamped this much
+/// after the chunk's first one, so a log cut anywhere (a killed writer's, or a copy cut short)
+/// keeps every record but those of its last second of log time, however fast it was written (a
+/// simulated world runs faster than the wall clock that [`FLUSH_PERIOD`] counts).
+const CHUNK_SPAN_US: u64 = FLUSH_PERIOD.as_micros() as u64;
+
+/// The file, its context and writer, and the thread that flushes it every [`FLUSH_PERIOD`].
 pub(super) struct LogFile {
     pub(super) path: PathBuf,
     // Field order matters for drop: the flusher stops before the writer finishes, and the
@@ -29,10 +39,17 @@ pub(super) struct LogFile {
     flusher: Option<Flusher>,
     writer: Arc<McapWriterHandle<BufWriter<File>>>,
     pub(super) context: Arc<Context>,
+    /// The stamp of the open chunk's first record, µs (`None`: none since the last chunk).
+    chunk_start_us: Option<u64>,
 }
 
 impl LogFile {
-    pub(super) fn create(path: &Path, metadata: &[(&str, String)]) -> Result<Self, LogError> {
+    /// Creates the file with its `metadata` and the attachments of `inputs`.
+    pub(super) fn create(
+        path: &Path,
+        metadata: &[(&str, String)],
+        inputs: &LogInputs,
+    ) -> Result<Self, LogError> {
         let create_error = |error: String| LogError::Create {
             path: path.to_owned(),
             error,
@@ -52,7 +69,12 @@ impl LogFile {
         let context = Context::new();
         let options = McapWriteOptions::new()
             .profile(PROFILE)
-            .compression(None)
+            // Foxglove and the mcap crate (the readers here) decompress zstd chunks; the JSON
+            // records shrink about tenfold.
+            .compression(Some(McapCompression::Zstd))
+            // Compressed on the writing thread, as written: no worker threads beside a control
+            // loop, and a chunk is whole when it is finished.
+            .compression_threads(0)
             .use_chunks(true)
             // Whole chunks are written at once: no placeholder header on disk if killed.
             .disable_seeking(true);
@@ -66,8 +88,19 @@ impl LogFile {
             .collect();
         writer
             .write_metadata("moonhaul", metadata)
-            .and_then(|()| writer.flush())
             .map_err(|e| create_error(e.to_string()))?;
+        for a in &inputs.attachments {
+            writer
+                .attach(&McapAttachment {
+                    log_time: 0,
+                    create_time: a.modified_ns,
+                    name: a.name.clone(),
+                    media_type: a.media_type.to_owned(),
+                    data: a.data.as_slice().into(),
+                })
+                .map_err(|e| create_error(format!("attaching {}: {e}", a.name)))?;
+        }
+        writer.flush().map_err(|e| create_error(e.to_string()))?;
         let writer = Arc::new(writer);
         let flusher = Flusher::spawn(path, Arc::clone(&writer)).map_err(create_error)?;
         Ok(Self {
@@ -75,7 +108,24 @@ impl LogFile {
             flusher: Some(flusher),
             writer,
             context,
+            chunk_start_us: None,
         })
+    }
+
+    /// Called before the records stamped `stamp_us` are logged: finishes the open chunk if
+    /// they would stretch it past [`CHUNK_SPAN_US`] (or its stamps run backwards).
+    pub(super) fn start_records(&mut self, stamp_us: u64) -> Result<(), LogError> {
+        match self.chunk_start_us {
+            Some(start) if stamp_us >= start && stamp_us - start < CHUNK_SPAN_US => Ok(()),
+            Some(_) => {
+                self.chunk_start_us = Some(stamp_us);
+                self.flush()
+            }
+            None => {
+                self.chunk_start_us = Some(stamp_us);
+                Ok(())
+            }
+        }
     }
 
     pub(super) fn json_channel(
@@ -152,6 +202,7 @@ impl LogFile {
             flusher,
             writer,
             context,
+            ..
         } = self;
         // Stop the flusher first: it holds the other reference to the writer.
         drop(flusher);

@@ -117,6 +117,8 @@ pub(super) fn world_schema() -> serde_json::Value {
             "payload_ground_contact": { "type": "boolean" },
             "base_position_m": { "type": "array", "items": numbers(3) },
             "base_orientation_xyzw": { "type": "array", "items": numbers(4) },
+            "wheel_position_rad": { "type": "array", "items": numbers(2) },
+            "arm_position_rad": { "type": "array", "items": numbers(7) },
             "unit_phase": {
                 "type": "array",
                 "items": { "anyOf": [phase_schema(), { "type": "null" }] }

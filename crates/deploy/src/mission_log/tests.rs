@@ -11,8 +11,11 @@ use moonhaul_coord::message::RejectCounts;
 
 use super::read::{read_json_topic, TopicFilter};
 use super::schema::{tick_schema, world_schema};
-use crate::record::{TickRecord, WorldFrame};
 use super::*;
+use crate::record::{TickRecord, WorldFrame};
+use moonhaul_core::config::repo_file;
+use moonhaul_core::unit::UnitSpec;
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use moonhaul_coord::HoldReason;
 use moonhaul_core::stacked::{StackedDistance, Subsystem};
 use moonhaul_core::state::{Phase, UnitCommand, UnitState};
@@ -21,10 +24,20 @@ use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
+/// The configs the test logs attach beside the unit URDF.
+const CONFIGS: [&str; 2] = ["configs/gate.toml", "configs/sync.toml"];
+
+fn inputs() -> LogInputs {
+    let configs: Vec<_> = CONFIGS.iter().map(|c| repo_file(c)).collect();
+    LogInputs::read(&repo_file("assets/unit.urdf"), &configs).unwrap()
+}
+
 fn tick(unit: usize, tick: u64) -> TickRecord {
     let mut sensed = UnitState::default();
     sensed.base_pose.x_m = tick as f64 * 0.01;
-    sensed.arm.position_rad[3] = 0.25;
+    sensed.base_pose.yaw_rad = 0.3 + tick as f64 * 0.01;
+    sensed.wheels.position_rad = [0.1 * tick as f64, -0.05 * tick as f64];
+    sensed.arm.position_rad = std::array::from_fn(|j| 0.25 - 0.07 * j as f64 + 1e-3 * tick as f64);
     let mut issued = UnitCommand::default();
     issued.arm_position_rad[1] = -0.5 + tick as f64 * 1e-3;
     TickRecord {
@@ -72,6 +85,10 @@ fn frame(tick: u64, units: usize) -> WorldFrame {
         payload_ground_contact: tick == 0,
         base_position_m: (0..units).map(|i| [0.1 * t, i as f64 - 0.5, 0.1]).collect(),
         base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; units],
+        wheel_position_rad: (0..units).map(|i| [t, i as f64 - t]).collect(),
+        arm_position_rad: (0..units)
+            .map(|i| std::array::from_fn(|j| 0.1 * (i + j) as f64 - 0.2 * t))
+            .collect(),
         unit_phase: (0..units)
             .map(|i| (i == 0).then_some(Phase::Lift))
             .collect(),
@@ -109,7 +126,7 @@ fn unit_log_round_trips_with_its_stamps_as_log_time() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("unit-1.mcap");
     let records: Vec<TickRecord> = (1..=60).map(|k| tick(1, k)).collect();
-    let mut log = UnitLog::create(&path, 1).unwrap();
+    let mut log = UnitLog::create(&path, 1, &inputs()).unwrap();
     for r in &records {
         log.write(r).unwrap();
     }
@@ -119,7 +136,7 @@ fn unit_log_round_trips_with_its_stamps_as_log_time() {
     let bytes = std::fs::read(&path).unwrap();
     assert!(bytes.ends_with(mcap::MAGIC), "finished file has its footer");
     let topics = messages(&path);
-    assert_eq!(topics.keys().collect::<Vec<_>>(), ["/unit1/tick"]);
+    assert_eq!(topics.keys().collect::<Vec<_>>(), [TF_TOPIC, "/unit1/tick"]);
     let (encoding, schema, msgs) = &topics["/unit1/tick"];
     assert_eq!(
         (encoding.as_str(), schema.as_str()),
@@ -128,7 +145,139 @@ fn unit_log_round_trips_with_its_stamps_as_log_time() {
     let times: Vec<u64> = msgs.iter().map(|m| m.0).collect();
     let expected: Vec<u64> = records.iter().map(|r| r.stamp_us * 1000).collect();
     assert_eq!(times, expected);
+    let (_, schema, tf) = &topics[TF_TOPIC];
+    assert_eq!(schema, "foxglove.FrameTransforms");
+    assert_eq!(tf.iter().map(|m| m.0).collect::<Vec<_>>(), expected);
 }
+
+/// The pose of `frame` by composing `transforms` from `root` down, checking every transform is
+/// stamped `stamp`.
+fn resolve(transforms: &FrameTransforms, root: &str, frame: &str) -> Isometry3<f64> {
+    if frame == root {
+        return Isometry3::identity();
+    }
+    let t = transforms
+        .transforms
+        .iter()
+        .find(|t| t.child_frame_id == frame)
+        .unwrap_or_else(|| panic!("no transform to {frame}"));
+    let (p, q) = (t.translation.unwrap(), t.rotation.unwrap());
+    resolve(transforms, root, &t.parent_frame_id)
+        * Isometry3::from_parts(
+            Translation3::new(p.x, p.y, p.z),
+            UnitQuaternion::from_quaternion(Quaternion::new(q.w, q.x, q.y, q.z)),
+        )
+}
+
+fn assert_close(a: &Isometry3<f64>, b: &Isometry3<f64>) {
+    let d = a.inverse() * b;
+    assert!(
+        d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-9,
+        "{a} != {b}"
+    );
+}
+
+#[test]
+fn unit_log_tf_puts_every_link_where_the_sensed_joints_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("unit-1.mcap");
+    let mut log = UnitLog::create(&path, 1, &inputs()).unwrap();
+    let records: Vec<TickRecord> = (1..=5).map(|k| tick(1, k)).collect();
+    for r in &records {
+        log.write(r).unwrap();
+    }
+    log.finish().unwrap();
+    let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
+    let tree = moonhaul_core::kinematics::KinematicTree::from_file(repo_file("assets/unit.urdf"))
+        .unwrap();
+    let tf = &messages(&path)[TF_TOPIC].2;
+    for (r, (_, data)) in records.iter().zip(tf) {
+        let decoded = <FrameTransforms as foxglove::Decode>::decode(&data[..]).unwrap();
+        // One transform per URDF joint, and the base's.
+        assert_eq!(decoded.transforms.len(), tree.joints().len() + 1);
+        for link in tree.links() {
+            let frame = format!("unit1/{}", link.name);
+            assert!(
+                decoded.transforms.iter().any(|t| t.child_frame_id == frame),
+                "no {frame}"
+            );
+        }
+        let pose = &r.sensed.base_pose;
+        let base = Isometry3::new(
+            Vector3::new(pose.x_m, pose.y_m, 0.0),
+            Vector3::z() * pose.yaw_rad,
+        ) * spec.ground_to_base();
+        assert_close(&resolve(&decoded, "world", "unit1/base_link"), &base);
+        let ee = base * spec.arm.forward(&r.sensed.arm.position_rad).unwrap();
+        assert_close(&resolve(&decoded, "world", "unit1/ee"), &ee);
+        let stamp = decoded.transforms[0].timestamp.unwrap();
+        assert_eq!(
+            u64::from(stamp.sec()) * 1_000_000 + u64::from(stamp.nsec()) / 1000,
+            r.stamp_us
+        );
+    }
+}
+
+#[test]
+fn logs_attach_the_urdf_and_configs_they_were_recorded_with() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("unit-0.mcap");
+    let mut log = UnitLog::create(&path, 0, &inputs()).unwrap();
+    log.write(&tick(0, 1)).unwrap();
+    // Readable before the log is finished: a killed writer's log carries them too.
+    log.flush().unwrap();
+    let early = read_attachments(&path).unwrap();
+    log.finish().unwrap();
+    let all = read_attachments(&path).unwrap();
+    assert_eq!(all.end, LogEnd::Finished);
+    assert!(matches!(early.end, LogEnd::Truncated { .. }));
+    assert_eq!(early.records, all.records);
+    let files: Vec<_> = std::iter::once("assets/unit.urdf")
+        .chain(CONFIGS)
+        .map(repo_file)
+        .collect();
+    assert_eq!(all.records.len(), files.len());
+    for ((name, data), file) in all.records.iter().zip(&files) {
+        assert_eq!(name, &file.display().to_string());
+        assert_eq!(data, &std::fs::read(file).unwrap());
+    }
+    // A config that cannot be read is named before any log is created.
+    let missing = dir.path().join("nope.toml");
+    let e = LogInputs::read(&repo_file("assets/unit.urdf"), &[missing.clone()])
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains(&missing.display().to_string()), "{e}");
+}
+
+#[test]
+fn chunks_are_compressed_and_span_at_most_a_second_of_log_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("world.mcap");
+    // 20 s of log time, written far faster than the wall clock.
+    let mut log = WorldLog::create(&path, [0.5, 0.4, 0.3], 2, &inputs()).unwrap();
+    for k in 0..1000 {
+        log.write(&frame(k, 2)).unwrap();
+    }
+    log.finish().unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    assert!(summary.chunk_indexes.len() >= 20, "{}", summary.chunk_indexes.len());
+    let (mut compressed, mut uncompressed) = (0, 0);
+    for chunk in &summary.chunk_indexes {
+        assert_eq!(chunk.compression, "zstd");
+        assert!(
+            chunk.message_end_time - chunk.message_start_time < 1_000_000_000,
+            "{chunk:?}"
+        );
+        compressed += chunk.compressed_size;
+        uncompressed += chunk.uncompressed_size;
+    }
+    assert!(
+        compressed * 4 < uncompressed,
+        "{compressed} of {uncompressed} bytes"
+    );
+    assert_eq!(read_world_log(&path).unwrap().len(), 1000);}
 
 #[test]
 fn schemas_name_every_field() {
@@ -153,7 +302,7 @@ fn truncated_log_gives_its_complete_prefix() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("unit-0.mcap");
     let records: Vec<TickRecord> = (1..=120).map(|k| tick(0, k)).collect();
-    let mut log = UnitLog::create(&path, 0).unwrap();
+    let mut log = UnitLog::create(&path, 0, &inputs()).unwrap();
     for chunk in records.chunks(10) {
         for r in chunk {
             log.write(r).unwrap();
@@ -200,7 +349,7 @@ fn killed_writer_child() {
     let Some(path) = std::env::var_os(CHILD_LOG_ENV) else {
         return;
     };
-    let mut log = UnitLog::create(Path::new(&path), 0).unwrap();
+    let mut log = UnitLog::create(Path::new(&path), 0, &inputs()).unwrap();
     let start = Instant::now();
     let mut k = 0;
     while start.elapsed() < Duration::from_secs(60) {
@@ -303,23 +452,29 @@ fn garbage_is_an_error_naming_the_file_and_record() {
     let e = error_text(read_unit_log(&random));
     assert!(e.contains(&name(&random)) && e.contains("record 1"), "{e}");
 
-    // A byte changed inside a chunk: its CRC no longer matches.
+    // A chunk whose CRC does not match its records; one whose compressed bytes are damaged.
     let path = dir.path().join("unit-0.mcap");
-    let mut log = UnitLog::create(&path, 0).unwrap();
+    let mut log = UnitLog::create(&path, 0, &inputs()).unwrap();
     for k in 1..=20 {
         log.write(&tick(0, k)).unwrap();
     }
     log.finish().unwrap();
-    let mut bytes = std::fs::read(&path).unwrap();
-    let at = bytes
-        .windows(12)
-        .position(|w| w == b"\"grasp_open\"")
-        .unwrap();
-    bytes[at + 1] = b'G';
-    let flipped = dir.path().join("flipped.mcap");
-    std::fs::write(&flipped, &bytes).unwrap();
-    let e = error_text(read_unit_log(&flipped));
-    assert!(e.contains(&name(&flipped)) && e.contains("CRC"), "{e}");
+    let bytes = std::fs::read(&path).unwrap();
+    let chunk = &mcap::Summary::read(&bytes).unwrap().unwrap().chunk_indexes[0];
+    let start = chunk.chunk_start_offset as usize;
+    // Opcode, record length, start and end time, uncompressed size: then the CRC.
+    let crc_at = start + 1 + 8 + 3 * 8;
+    for (at, needle) in [(crc_at, "CRC"), (start + chunk.chunk_length as usize - 20, "")] {
+        let mut flipped_bytes = bytes.clone();
+        flipped_bytes[at] ^= 0x5a;
+        let flipped = dir.path().join("flipped.mcap");
+        std::fs::write(&flipped, &flipped_bytes).unwrap();
+        let e = error_text(read_unit_log(&flipped));
+        assert!(
+            e.contains(&name(&flipped)) && e.contains("record") && e.contains(needle),
+            "{e}"
+        );
+    }
 
     // Valid MCAP, but the message is not a TickRecord.
     let bogus = dir.path().join("bogus.mcap");
@@ -359,11 +514,11 @@ fn garbage_is_an_error_naming_the_file_and_record() {
 fn a_log_of_the_other_kind_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let unit = dir.path().join("unit-0.mcap");
-    let mut log = UnitLog::create(&unit, 0).unwrap();
+    let mut log = UnitLog::create(&unit, 0, &inputs()).unwrap();
     log.write(&tick(0, 1)).unwrap();
     log.finish().unwrap();
     let world = dir.path().join("world.mcap");
-    let mut log = WorldLog::create(&world, [0.4, 0.3, 0.2], 2).unwrap();
+    let mut log = WorldLog::create(&world, [0.4, 0.3, 0.2], 2, &inputs()).unwrap();
     log.write(&frame(0, 2)).unwrap();
     log.finish().unwrap();
     let e = read_world_log(&unit).unwrap_err().to_string();
@@ -382,7 +537,7 @@ fn world_log_round_trips_and_draws_in_3d() {
     let size = [0.6, 0.4, 0.3];
     // 2.5 s of frames at 50 Hz.
     let frames: Vec<WorldFrame> = (0..125).map(|k| frame(k, 2)).collect();
-    let mut log = WorldLog::create(&path, size, 2).unwrap();
+    let mut log = WorldLog::create(&path, size, 2, &inputs()).unwrap();
     for f in &frames {
         log.write(f).unwrap();
     }
@@ -401,24 +556,33 @@ fn world_log_round_trips_and_draws_in_3d() {
         (encoding.as_str(), schema.as_str()),
         ("protobuf", "foxglove.FrameTransforms")
     );
-    assert_eq!(tf.len(), frames.len());
-    let (time, data) = &tf[100];
-    assert_eq!(*time, frames[100].stamp_us * 1000);
-    let decoded = <FrameTransforms as foxglove::Decode>::decode(&data[..]).unwrap();
-    let children: Vec<&str> = decoded
-        .transforms
-        .iter()
-        .map(|t| t.child_frame_id.as_str())
-        .collect();
-    assert_eq!(children, ["payload", "base0", "base1"]);
-    assert!(decoded
-        .transforms
-        .iter()
-        .all(|t| t.parent_frame_id == "world"));
-    let p = decoded.transforms[0].translation.unwrap();
+    // Per frame: the payload, then each unit's links.
+    assert_eq!(tf.len(), 3 * frames.len());
+    let decode = |k: usize| {
+        let (time, data) = &tf[k];
+        assert_eq!(*time, frames[k / 3].stamp_us * 1000);
+        <FrameTransforms as foxglove::Decode>::decode(&data[..]).unwrap()
+    };
+    let payload = decode(300);
+    assert_eq!(payload.transforms.len(), 1);
+    assert_eq!(payload.transforms[0].parent_frame_id, "world");
+    assert_eq!(payload.transforms[0].child_frame_id, "payload");
+    let p = payload.transforms[0].translation.unwrap();
     assert_eq!([p.x, p.y, p.z], frames[100].payload_position_m);
-    let b = decoded.transforms[2].translation.unwrap();
-    assert_eq!([b.x, b.y, b.z], frames[100].base_position_m[1]);
+    let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
+    for unit in 0..2 {
+        let links = decode(301 + unit);
+        let f = &frames[100];
+        let [x, y, z] = f.base_position_m[unit];
+        let base = Isometry3::translation(x, y, z) * spec.ground_to_base();
+        let root = format!("truth/unit{unit}/base_link");
+        assert_close(&resolve(&links, "world", &root), &base);
+        let ee = base * spec.arm.forward(&f.arm_position_rad[unit]).unwrap();
+        assert_close(
+            &resolve(&links, "world", &format!("truth/unit{unit}/ee")),
+            &ee,
+        );
+    }
 
     // The cube at start and once a second after: 0, 1, 2 s.
     let (_, schema, scene) = &topics[SCENE_TOPIC];
@@ -441,8 +605,8 @@ fn two_logs_in_one_process_do_not_mix() {
         dir.path().join("unit-1.mcap"),
     ];
     let mut logs = [
-        UnitLog::create(&paths[0], 0).unwrap(),
-        UnitLog::create(&paths[1], 1).unwrap(),
+        UnitLog::create(&paths[0], 0, &inputs()).unwrap(),
+        UnitLog::create(&paths[1], 1, &inputs()).unwrap(),
     ];
     for k in 1..=30 {
         for (unit, log) in logs.iter_mut().enumerate() {
@@ -456,13 +620,53 @@ fn two_logs_in_one_process_do_not_mix() {
         let records = read_unit_log(path).unwrap();
         assert_eq!(records, (1..=30).map(|k| tick(unit, k)).collect::<Vec<_>>());
         let topics = messages(path);
-        assert_eq!(topics.keys().collect::<Vec<_>>(), [&unit_topic(unit)]);
+        assert_eq!(
+            topics.keys().cloned().collect::<Vec<_>>(),
+            [TF_TOPIC.to_owned(), unit_topic(unit)]
+        );
     }
 }
 
 #[test]
 fn refuses_to_write_through_a_non_file() {
     let dir = tempfile::tempdir().unwrap();
-    let e = UnitLog::create(dir.path(), 0).err().unwrap().to_string();
+    let e = UnitLog::create(dir.path(), 0, &inputs()).err().unwrap().to_string();
     assert!(e.contains("not a regular file"), "{e}");
+}
+
+/// `assets/foxglove/mission_layout.json` plots and draws only what the logs write: every
+/// message path names a topic of a unit or world log and a field of its schema, and the 3-D
+/// panel's topics are the logs' `/tf` and `/scene`.
+#[test]
+fn the_foxglove_layout_names_what_the_logs_write() {
+    let text = std::fs::read_to_string(repo_file("assets/foxglove/mission_layout.json")).unwrap();
+    let layout: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let panels = layout["configById"].as_object().unwrap();
+    let mut paths = 0;
+    for (id, panel) in panels {
+        for path in panel["paths"].as_array().into_iter().flatten() {
+            let value = path["value"].as_str().unwrap();
+            let (topic, field) = value.split_once('.').unwrap();
+            let schema = if topic == WORLD_TOPIC {
+                world_schema()
+            } else if (0..2).any(|i| topic == unit_topic(i)) {
+                tick_schema()
+            } else {
+                panic!("{id}: {value} is on no topic the logs write")
+            };
+            assert!(
+                schema["properties"].get(field).is_some(),
+                "{id}: {value}: no field {field}"
+            );
+            paths += 1;
+        }
+        if let Some(topics) = panel["topics"].as_object() {
+            for topic in topics.keys() {
+                assert!([TF_TOPIC, SCENE_TOPIC].contains(&topic.as_str()), "{id}: {topic}");
+            }
+        }
+    }
+    // Height, phase, t_max; and the 3-D panel.
+    assert!(paths >= 5, "{paths}");
+    assert!(panels.keys().any(|id| id.starts_with("3D!")));
 }

@@ -5,11 +5,16 @@ use std::sync::Arc;
 
 use foxglove::schemas::{FrameTransform, FrameTransforms, SceneUpdate};
 use foxglove::{Channel, RawChannel};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 use super::file::{log_time_ns, LogFile};
+use super::inputs::LogInputs;
+use super::links::UnitFrames;
 use super::scene::{payload_scene, quaternion, timestamp, vector};
 use super::schema::world_schema;
-use super::topics::{base_frame_id, PAYLOAD_FRAME_ID, SCENE_TOPIC, TF_TOPIC, WORLD_FRAME_ID, WORLD_TOPIC};
+use super::topics::{
+    truth_frame_prefix, PAYLOAD_FRAME_ID, SCENE_TOPIC, TF_TOPIC, WORLD_FRAME_ID, WORLD_TOPIC,
+};
 use super::LogError;
 use crate::record::WorldFrame;
 
@@ -17,14 +22,17 @@ use crate::record::WorldFrame;
 /// is started or seeked to, not only after the first message.
 const SCENE_REPUBLISH_US: u64 = 1_000_000;
 
-/// The world's mission log: ground truth on `/world/frame`, and `/tf` and `/scene` for 3-D.
+/// The world's mission log: ground truth on `/world/frame`; `/tf` (`world` → `payload`, and
+/// per unit `world` → `truth/unit{i}/base_link` and every URDF joint at the true joint
+/// positions) and `/scene` for 3-D.
 pub struct WorldLog {
     file: LogFile,
     frames: Arc<RawChannel>,
     tf: Channel<FrameTransforms>,
     scene: Channel<SceneUpdate>,
     payload_size_m: [f64; 3],
-    units: usize,
+    /// One per unit of the team.
+    links: Vec<UnitFrames>,
     /// Log time of the last scene update, µs (`None`: none sent yet).
     scene_sent_us: Option<u64>,
     buf: Vec<u8>,
@@ -32,11 +40,13 @@ pub struct WorldLog {
 
 impl WorldLog {
     /// Creates (or replaces) the world log at `path` for a payload of `payload_size_m` (the
-    /// box that Foxglove draws, centered on the payload pose) carried by `units` units.
+    /// box that Foxglove draws, centered on the payload pose) carried by `units` units of the
+    /// model of `inputs`, attaching its files.
     pub fn create(
         path: &Path,
         payload_size_m: [f64; 3],
         units: usize,
+        inputs: &LogInputs,
     ) -> Result<WorldLog, LogError> {
         let size = payload_size_m.map(|s| format!("{s}"));
         let file = LogFile::create(
@@ -45,17 +55,28 @@ impl WorldLog {
                 ("units", units.to_string()),
                 ("payload_size_m", size.join(",")),
             ],
+            inputs,
         )?;
         let frames = file.json_channel(WORLD_TOPIC, "moonhaul.WorldFrame", &world_schema())?;
         let tf = file.context.channel_builder(TF_TOPIC).build();
         let scene = file.context.channel_builder(SCENE_TOPIC).build();
+        let links = (0..units)
+            .map(|i| {
+                UnitFrames::new(
+                    &inputs.tree,
+                    &inputs.spec,
+                    WORLD_FRAME_ID,
+                    &truth_frame_prefix(i),
+                )
+            })
+            .collect();
         Ok(WorldLog {
             file,
             frames,
             tf,
             scene,
             payload_size_m,
-            units,
+            links,
             scene_sent_us: None,
             buf: Vec::with_capacity(1024),
         })
@@ -66,47 +87,56 @@ impl WorldLog {
     /// match the team size the log was created for.
     pub fn write(&mut self, f: &WorldFrame) -> Result<(), LogError> {
         self.file.check()?;
-        let units = self.units;
-        if f.base_position_m.len() != units
-            || f.base_orientation_xyzw.len() != units
-            || f.unit_phase.len() != units
-        {
+        let units = self.links.len();
+        let lengths = [
+            f.base_position_m.len(),
+            f.base_orientation_xyzw.len(),
+            f.wheel_position_rad.len(),
+            f.arm_position_rad.len(),
+            f.unit_phase.len(),
+        ];
+        if lengths.iter().any(|&n| n != units) {
             return Err(LogError::FrameShape {
                 path: self.file.path.clone(),
                 tick: f.tick,
-                bases: f.base_position_m.len(),
-                orientations: f.base_orientation_xyzw.len(),
-                phases: f.unit_phase.len(),
+                bases: lengths[0],
+                orientations: lengths[1],
+                wheels: lengths[2],
+                arms: lengths[3],
+                phases: lengths[4],
                 units,
             });
         }
+        self.file.start_records(f.stamp_us)?;
         self.file
             .log_json(&self.frames, f, f.stamp_us, &mut self.buf)?;
         let log_time_ns = log_time_ns(f.stamp_us);
         let stamp = timestamp(f.stamp_us);
-        let transform = |child: String, p: &[f64; 3], q: &[f64; 4]| FrameTransform {
-            timestamp: Some(stamp),
-            parent_frame_id: WORLD_FRAME_ID.to_owned(),
-            child_frame_id: child,
-            translation: Some(vector(p)),
-            rotation: Some(quaternion(q)),
+        let payload = FrameTransforms {
+            transforms: vec![FrameTransform {
+                timestamp: Some(stamp),
+                parent_frame_id: WORLD_FRAME_ID.to_owned(),
+                child_frame_id: PAYLOAD_FRAME_ID.to_owned(),
+                translation: Some(vector(&f.payload_position_m)),
+                rotation: Some(quaternion(&f.payload_orientation_xyzw)),
+            }],
         };
-        let mut transforms = Vec::with_capacity(1 + units);
-        transforms.push(transform(
-            PAYLOAD_FRAME_ID.to_owned(),
-            &f.payload_position_m,
-            &f.payload_orientation_xyzw,
-        ));
-        for (i, (p, q)) in f
-            .base_position_m
-            .iter()
-            .zip(&f.base_orientation_xyzw)
-            .enumerate()
-        {
-            transforms.push(transform(base_frame_id(i), p, q));
+        self.tf.log_with_time(&payload, log_time_ns);
+        for (i, links) in self.links.iter_mut().enumerate() {
+            let [x, y, z] = f.base_position_m[i];
+            let [qx, qy, qz, qw] = f.base_orientation_xyzw[i];
+            let footprint = Isometry3::from_parts(
+                Translation3::new(x, y, z),
+                UnitQuaternion::new_normalize(Quaternion::new(qw, qx, qy, qz)),
+            );
+            let tf = links.update(
+                &footprint,
+                &f.wheel_position_rad[i],
+                &f.arm_position_rad[i],
+                stamp,
+            );
+            self.tf.log_with_time(tf, log_time_ns);
         }
-        self.tf
-            .log_with_time(&FrameTransforms { transforms }, log_time_ns);
         let due = match self.scene_sent_us {
             None => true,
             Some(sent) => f.stamp_us < sent || f.stamp_us - sent >= SCENE_REPUBLISH_US,
