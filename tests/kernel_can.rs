@@ -54,7 +54,10 @@ fn fails_with(args: &[&str], needles: &[&str]) -> String {
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
     for needle in needles {
-        assert!(stderr.contains(needle), "{args:?}: no {needle:?} in {stderr}");
+        assert!(
+            stderr.contains(needle),
+            "{args:?}: no {needle:?} in {stderr}"
+        );
     }
     stderr
 }

@@ -58,7 +58,12 @@ fn trial_frames(steady_m: f64, ramp_s: f64, settled_m: f64) -> Vec<WorldFrame> {
                 _ => (Phase::Idle, settled_m),
             };
             // Unit 0 is silent on odd ticks: the phase falls back to unit 1's.
-            let mut f = frame(k, stamp_us, [(k % 2 == 0).then_some(phase), Some(phase)], height);
+            let mut f = frame(
+                k,
+                stamp_us,
+                [(k % 2 == 0).then_some(phase), Some(phase)],
+                height,
+            );
             f.payload_position_m[0] = 0.1 * t;
             f.base_position_m = vec![[0.1 * t, -0.6, 0.0], [0.1 * t, 0.6, 0.0]];
             // The grippers open once the placement ends.
@@ -260,7 +265,12 @@ fn frames_stamped_beyond_the_mission_are_left_out_and_named() {
     write_log(&dir.path().join("box/trial-1/world.mcap"), &whole);
     let summary = summary_json(dir.path());
     let [cut, clean] = [&summary["trials"][0], &summary["trials"][1]];
-    for key in ["steady_height_mm", "time_to_95_s", "settled_height_mm", "duration_s"] {
+    for key in [
+        "steady_height_mm",
+        "time_to_95_s",
+        "settled_height_mm",
+        "duration_s",
+    ] {
         close(&cut[key], clean[key].as_f64().unwrap(), 1e-9);
     }
     assert_eq!(cut["completed"], true);
@@ -268,7 +278,9 @@ fn frames_stamped_beyond_the_mission_are_left_out_and_named() {
     assert_eq!(unread.len(), 1, "{unread:?}");
     let note = unread[0].as_str().unwrap();
     assert!(
-        note.contains("2 frames") && note.contains("beyond the mission's span") && note.contains("tick 700"),
+        note.contains("2 frames")
+            && note.contains("beyond the mission's span")
+            && note.contains("tick 700"),
         "{note}"
     );
     assert!(clean["unread"].as_array().unwrap().is_empty());
@@ -324,17 +336,24 @@ fn a_log_cut_anywhere_summarizes_all_but_its_last_second() {
         last_duration = duration;
         let note = t["unread"][0].as_str().unwrap();
         assert!(
-            note.contains("ends without its footer") && note.contains(&format!("trial-{}", t["trial"])),
+            note.contains("ends without its footer")
+                && note.contains(&format!("trial-{}", t["trial"])),
             "{note}"
         );
     }
     // The cut in the last chunk: the whole mission but its last second.
     let whole_s = (last_us - frames[0].stamp_us) as f64 * 1e-6;
-    assert!(last_duration >= whole_s - 1.0, "{last_duration} of {whole_s} s");
+    assert!(
+        last_duration >= whole_s - 1.0,
+        "{last_duration} of {whole_s} s"
+    );
     assert_eq!(trials[5]["completed"], true);
     // The cut inside the header: named, with the file.
     let skipped = summary["skipped"].as_array().unwrap();
     assert_eq!(skipped.len(), 1, "{skipped:?}");
     let reason = skipped[0]["reason"].as_str().unwrap();
-    assert!(reason.contains("trial-6") && reason.contains("empty log"), "{reason}");
+    assert!(
+        reason.contains("trial-6") && reason.contains("empty log"),
+        "{reason}"
+    );
 }

@@ -26,7 +26,8 @@ use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::can::UnitCanConfig;
 use moonhaul_hal::mock::MockConfig;
 use moonhaul_hal::unit::{
-    emulated_unit, kernel_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput, UnitReading,
+    emulated_unit, kernel_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput,
+    UnitReading,
 };
 use tracing::{info, warn};
 
@@ -381,9 +382,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             let Some(interface) = args.can_interface.as_deref() else {
                 bail!("--hal can needs --can-interface NAME (e.g. can0)");
             };
-            Hardware::Can(Box::new(kernel_unit(&can, interface).with_context(|| {
-                format!("bringing up the unit's CAN drives on {interface}")
-            })?))
+            Hardware::Can(Box::new(kernel_unit(&can, interface).with_context(
+                || format!("bringing up the unit's CAN drives on {interface}"),
+            )?))
         }
         HalKind::CanEmulated => {
             let can = UnitCanConfig::from_file(&config.can)?;
@@ -434,7 +435,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     // reading: it starts from 0 and the first message takes the clock then.
     let boot_us = match args.hal {
         HalKind::Sim => 0,
-        HalKind::Mock | HalKind::Can | HalKind::CanEmulated => offset_us(wall_us(), args.clock_offset_ms),
+        HalKind::Mock | HalKind::Can | HalKind::CanEmulated => {
+            offset_us(wall_us(), args.clock_offset_ms)
+        }
     };
     let mut onboard = Onboard::new(
         OnboardSettings {

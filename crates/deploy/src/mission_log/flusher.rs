@@ -30,7 +30,10 @@ impl Drop for Flusher {
 }
 
 impl Flusher {
-    pub(super) fn spawn(path: &Path, writer: Arc<McapWriterHandle<BufWriter<File>>>) -> Result<Self, String> {
+    pub(super) fn spawn(
+        path: &Path,
+        writer: Arc<McapWriterHandle<BufWriter<File>>>,
+    ) -> Result<Self, String> {
         let (stop, stopped) = mpsc::channel::<()>();
         let error = Arc::new(Mutex::new(None));
         let first_error = Arc::clone(&error);

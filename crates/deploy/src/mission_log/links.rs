@@ -2,9 +2,9 @@
 //! values, so Foxglove's 3-D panel moves the whole unit (wheels, arm, gripper), not only its
 //! base.
 
+use foxglove::schemas::FrameTransforms;
 use foxglove::schemas::{FrameTransform, Quaternion, Timestamp, Vector3};
 use moonhaul_core::kinematics::{Joint, KinematicTree};
-use foxglove::schemas::FrameTransforms;
 use moonhaul_core::state::{ARM_JOINTS, WHEEL_JOINTS};
 use moonhaul_core::unit::UnitSpec;
 use nalgebra::Isometry3;
@@ -48,7 +48,10 @@ impl UnitFrames {
             translation: None,
             rotation: None,
         };
-        let mut transforms = vec![edge(parent.to_owned(), format!("{prefix}{}", spec.base_link))];
+        let mut transforms = vec![edge(
+            parent.to_owned(),
+            format!("{prefix}{}", spec.base_link),
+        )];
         let mut joints = Vec::with_capacity(tree.joints().len());
         for joint in tree.joints() {
             transforms.push(edge(

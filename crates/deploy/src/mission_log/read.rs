@@ -149,14 +149,15 @@ pub(super) fn read_json_topic<T: DeserializeOwned>(
             }
             Record::Message { header, data } => match channels.get(&header.channel_id) {
                 Some(Some(topic)) => {
-                    let value = serde_json::from_slice(&data).map_err(|e| LogError::BadMessage {
-                        path: path.to_owned(),
-                        topic: topic.clone(),
-                        message: out.len() + 1,
-                        record,
-                        kind: filter.type_name,
-                        error: e.to_string(),
-                    })?;
+                    let value =
+                        serde_json::from_slice(&data).map_err(|e| LogError::BadMessage {
+                            path: path.to_owned(),
+                            topic: topic.clone(),
+                            message: out.len() + 1,
+                            record,
+                            kind: filter.type_name,
+                            error: e.to_string(),
+                        })?;
                     out.push(value);
                 }
                 Some(None) => {}

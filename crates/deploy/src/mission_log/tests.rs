@@ -13,12 +13,12 @@ use super::read::{read_json_topic, TopicFilter};
 use super::schema::{tick_schema, world_schema};
 use super::*;
 use crate::record::{TickRecord, WorldFrame};
-use moonhaul_core::config::repo_file;
-use moonhaul_core::unit::UnitSpec;
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use moonhaul_coord::HoldReason;
+use moonhaul_core::config::repo_file;
 use moonhaul_core::stacked::{StackedDistance, Subsystem};
 use moonhaul_core::state::{Phase, UnitCommand, UnitState};
+use moonhaul_core::unit::UnitSpec;
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::collections::BTreeSet;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -188,8 +188,8 @@ fn unit_log_tf_puts_every_link_where_the_sensed_joints_do() {
     }
     log.finish().unwrap();
     let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
-    let tree = moonhaul_core::kinematics::KinematicTree::from_file(repo_file("assets/unit.urdf"))
-        .unwrap();
+    let tree =
+        moonhaul_core::kinematics::KinematicTree::from_file(repo_file("assets/unit.urdf")).unwrap();
     let tf = &messages(&path)[TF_TOPIC].2;
     for (r, (_, data)) in records.iter().zip(tf) {
         let decoded = <FrameTransforms as foxglove::Decode>::decode(&data[..]).unwrap();
@@ -243,10 +243,13 @@ fn logs_attach_the_urdf_and_configs_they_were_recorded_with() {
     }
     // A config that cannot be read is named before any log is created.
     let missing = dir.path().join("nope.toml");
-    let e = LogInputs::read(&repo_file("assets/unit.urdf"), &[missing.clone()])
-        .err()
-        .unwrap()
-        .to_string();
+    let e = LogInputs::read(
+        &repo_file("assets/unit.urdf"),
+        std::slice::from_ref(&missing),
+    )
+    .err()
+    .unwrap()
+    .to_string();
     assert!(e.contains(&missing.display().to_string()), "{e}");
 }
 
@@ -262,7 +265,11 @@ fn chunks_are_compressed_and_span_at_most_a_second_of_log_time() {
     log.finish().unwrap();
     let bytes = std::fs::read(&path).unwrap();
     let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
-    assert!(summary.chunk_indexes.len() >= 20, "{}", summary.chunk_indexes.len());
+    assert!(
+        summary.chunk_indexes.len() >= 20,
+        "{}",
+        summary.chunk_indexes.len()
+    );
     let (mut compressed, mut uncompressed) = (0, 0);
     for chunk in &summary.chunk_indexes {
         assert_eq!(chunk.compression, "zstd");
@@ -277,7 +284,8 @@ fn chunks_are_compressed_and_span_at_most_a_second_of_log_time() {
         compressed * 4 < uncompressed,
         "{compressed} of {uncompressed} bytes"
     );
-    assert_eq!(read_world_log(&path).unwrap().len(), 1000);}
+    assert_eq!(read_world_log(&path).unwrap().len(), 1000);
+}
 
 #[test]
 fn schemas_name_every_field() {
@@ -464,7 +472,10 @@ fn garbage_is_an_error_naming_the_file_and_record() {
     let start = chunk.chunk_start_offset as usize;
     // Opcode, record length, start and end time, uncompressed size: then the CRC.
     let crc_at = start + 1 + 8 + 3 * 8;
-    for (at, needle) in [(crc_at, "CRC"), (start + chunk.chunk_length as usize - 20, "")] {
+    for (at, needle) in [
+        (crc_at, "CRC"),
+        (start + chunk.chunk_length as usize - 20, ""),
+    ] {
         let mut flipped_bytes = bytes.clone();
         flipped_bytes[at] ^= 0x5a;
         let flipped = dir.path().join("flipped.mcap");
@@ -630,7 +641,10 @@ fn two_logs_in_one_process_do_not_mix() {
 #[test]
 fn refuses_to_write_through_a_non_file() {
     let dir = tempfile::tempdir().unwrap();
-    let e = UnitLog::create(dir.path(), 0, &inputs()).err().unwrap().to_string();
+    let e = UnitLog::create(dir.path(), 0, &inputs())
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("not a regular file"), "{e}");
 }
 
@@ -662,7 +676,10 @@ fn the_foxglove_layout_names_what_the_logs_write() {
         }
         if let Some(topics) = panel["topics"].as_object() {
             for topic in topics.keys() {
-                assert!([TF_TOPIC, SCENE_TOPIC].contains(&topic.as_str()), "{id}: {topic}");
+                assert!(
+                    [TF_TOPIC, SCENE_TOPIC].contains(&topic.as_str()),
+                    "{id}: {topic}"
+                );
             }
         }
     }
