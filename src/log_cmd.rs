@@ -29,6 +29,16 @@
 //! Per payload: mean ± sample standard deviation (n − 1; 0 for a single trial) over the trials
 //! that have the metric. Outputs `DIR/summary.json` (the `--json` output) and
 //! `DIR/mission_profile.png`, published together.
+//!
+//! # Partial and damaged logs
+//!
+//! A log without its footer (a killed world, a copy cut short) is summarized from every frame
+//! it holds — all but at most its last second — and says so. A frame stamped before the
+//! previous one, more than [`MAX_FRAME_GAP_S`] after it (a clock jump: the mission's real span
+//! ends there) or with a non-finite height is left out and named. A trial that cannot be
+//! summarized (an unreadable log, no frames, no lift) is named with the reason and the others
+//! are still summarized; only when none can be is it an error. Each trial's `unread` lists what
+//! was not read, in `summary.json` and below the table.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -36,7 +46,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use moonhaul_core::state::Phase;
-use moonhaul_deploy::mission_log::read_world_log;
+use moonhaul_deploy::mission_log::{read_unit_log_contents, read_world_log_contents, LogEnd};
 use moonhaul_deploy::record::WorldFrame;
 use plotters::prelude::*;
 use serde::Serialize;
@@ -51,6 +61,12 @@ pub const SETTLE_WINDOW_S: f64 = 1.0;
 pub const REFERENCE_HEIGHT_M: f64 = 0.30;
 /// Step of the common time grid the profile figure averages trials on, s.
 const GRID_STEP_S: f64 = 0.1;
+/// Most points of that grid: past [`GRID_STEP_S`] × this (2.8 h) the step grows instead.
+const MAX_GRID_POINTS: usize = 100_000;
+/// A frame stamped more than this after the previous frame read is beyond the mission's real
+/// span (a clock jump, a corrupt stamp) and left out, s. The world logs every control step
+/// (20 ms); a tracker silent this long has lost the mission.
+pub const MAX_FRAME_GAP_S: f64 = 10.0;
 
 #[derive(clap::Subcommand)]
 pub enum LogCommand {
@@ -79,26 +95,61 @@ pub fn run(cmd: LogCommand) -> Result<()> {
 pub fn summarize(dir: &Path, json: bool) -> Result<()> {
     let trials = find_trials(dir)?;
     let mut metrics = Vec::with_capacity(trials.len());
+    let mut skipped = Vec::new();
     let mut profiles: BTreeMap<String, Vec<Profile>> = BTreeMap::new();
     for trial in &trials {
-        let frames = read_world_log(&trial.log)?;
-        let samples = samples(&frames).with_context(|| trial.log.display().to_string())?;
-        let m = trial_metrics(&samples)
-            .with_context(|| format!("{}: cannot summarize", trial.log.display()))?;
+        let log = trial.log.display().to_string();
+        let (samples, mut unread) = match read_trial(&trial.log) {
+            Ok(read) => read,
+            Err(e) => {
+                skipped.push(SkippedTrial {
+                    payload: trial.payload.clone(),
+                    trial: trial.trial,
+                    log,
+                    reason: format!("{e:#}"),
+                });
+                continue;
+            }
+        };
+        let m = match trial_metrics(&samples) {
+            Ok(m) => m,
+            Err(e) => {
+                let mut reason = format!("cannot summarize: {e:#}");
+                for note in &unread {
+                    let _ = write!(reason, "; {note}");
+                }
+                skipped.push(SkippedTrial {
+                    payload: trial.payload.clone(),
+                    trial: trial.trial,
+                    log,
+                    reason,
+                });
+                continue;
+            }
+        };
         profiles
             .entry(trial.payload.clone())
             .or_default()
             .push(Profile::new(&samples, &m));
         let folder = trial.log.parent().unwrap_or(Path::new("."));
+        let clamp = ClampStats::of_trial(folder, &mut unread);
         metrics.push(TrialSummary {
             payload: trial.payload.clone(),
             trial: trial.trial,
-            log: trial.log.display().to_string(),
+            log,
             metrics: m,
-            clamp: ClampStats::of_trial(folder)?,
+            clamp,
+            unread,
         });
     }
-    let summary = Summary::new(dir, metrics);
+    if metrics.is_empty() {
+        let mut why = format!("no trial of {} could be summarized:", dir.display());
+        for s in &skipped {
+            let _ = write!(why, "\n  {}: {}", s.log, s.reason);
+        }
+        bail!(why);
+    }
+    let summary = Summary::new(dir, metrics, skipped);
     let text = serde_json::to_string_pretty(&summary).context("encoding the summary")?;
     write_outputs(dir, &text, &summary, &profiles)?;
     if json {
@@ -219,6 +270,37 @@ fn paper_rank(payload: &str) -> u8 {
     }
 }
 
+/// The samples of the world log at `path` and what of it could not be read: its truncation,
+/// the frames left out. An error when the log cannot be read or yields no frame.
+fn read_trial(path: &Path) -> Result<(Vec<Sample>, Vec<String>)> {
+    let contents = read_world_log_contents(path)?;
+    let mut unread = Vec::new();
+    let truncated = match contents.end {
+        LogEnd::Finished => None,
+        LogEnd::Truncated { file_bytes } => Some(format!(
+            "{} ends without its footer ({file_bytes} bytes: a killed writer, or a copy cut \
+             short): read {} frames; its incomplete last chunk (at most a second) could not be",
+            path.display(),
+            contents.records.len()
+        )),
+    };
+    let samples = match samples(&contents.records) {
+        Ok((samples, left_out)) => {
+            unread.extend(truncated);
+            unread.extend(left_out);
+            samples
+        }
+        Err(e) => {
+            let e = match truncated {
+                Some(t) => e.context(t),
+                None => e,
+            };
+            return Err(e.context(path.display().to_string()));
+        }
+    };
+    Ok((samples, unread))
+}
+
 /// One frame of a trial as the metrics see it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Sample {
@@ -230,26 +312,56 @@ struct Sample {
     released: bool,
 }
 
+/// Frames of one kind left out of a trial: how many, and the first.
+#[derive(Default)]
+struct LeftOut {
+    count: usize,
+    /// (tick, stamp µs) of the first.
+    first: Option<(u64, u64)>,
+}
+
+impl LeftOut {
+    fn add(&mut self, f: &WorldFrame) {
+        self.count += 1;
+        self.first.get_or_insert((f.tick, f.stamp_us));
+    }
+
+    fn note(&self, why: &str) -> Option<String> {
+        let (tick, stamp_us) = self.first?;
+        Some(format!(
+            "{} frame{} {why} left out (the first: tick {tick}, stamped {stamp_us} µs)",
+            self.count,
+            if self.count == 1 { "" } else { "s" }
+        ))
+    }
+}
+
 /// The samples of `frames`: time from the first frame, the reported phase (unit 0's, else any
-/// unit's, else the last one known; Idle before any), refusing an empty log, time running
-/// backwards or a non-finite height.
-fn samples(frames: &[WorldFrame]) -> Result<Vec<Sample>> {
+/// unit's, else the last one known; Idle before any); and what was left out, named: frames
+/// stamped before the previous one read, more than [`MAX_FRAME_GAP_S`] after it, or with a
+/// non-finite height. An error for a log without frames.
+fn samples(frames: &[WorldFrame]) -> Result<(Vec<Sample>, Vec<String>)> {
     let Some(first) = frames.first() else {
         bail!("empty log: no ground-truth frames");
     };
+    let max_gap_us = (MAX_FRAME_GAP_S * 1e6) as u64;
+    let (mut backwards, mut beyond, mut non_finite) =
+        (LeftOut::default(), LeftOut::default(), LeftOut::default());
     let mut phase = Phase::Idle;
     let mut last_us = first.stamp_us;
     let mut out = Vec::with_capacity(frames.len());
     for f in frames {
         if f.stamp_us < last_us {
-            bail!(
-                "frame of tick {} is stamped {} µs, before the previous frame ({last_us} µs)",
-                f.tick,
-                f.stamp_us
-            );
+            backwards.add(f);
+            continue;
+        }
+        if f.stamp_us - last_us > max_gap_us {
+            beyond.add(f);
+            continue;
         }
         if !f.payload_height_m.is_finite() {
-            bail!("frame of tick {}: payload height is not finite", f.tick);
+            non_finite.add(f);
+            continue;
         }
         last_us = f.stamp_us;
         let reported = f
@@ -268,7 +380,18 @@ fn samples(frames: &[WorldFrame]) -> Result<Vec<Sample>> {
             released: !f.grasp_closed.iter().any(|closed| *closed),
         });
     }
-    Ok(out)
+    let beyond_why = format!(
+        "stamped more than {MAX_FRAME_GAP_S} s after the frame before (beyond the mission's span)"
+    );
+    let left_out = [
+        backwards.note("stamped before the frame before"),
+        beyond.note(&beyond_why),
+        non_finite.note("with a non-finite payload height"),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    Ok((out, left_out))
 }
 
 /// When each phase of the mission began, on the log's clock (s).
@@ -443,6 +566,17 @@ struct TrialSummary {
     /// What the synchronization clamp did, from the units' logs (`unit-<i>.mcap` beside the
     /// world log); `None` when the trial folder has none.
     clamp: Option<ClampStats>,
+    /// What of the trial's logs could not be read: truncation, frames left out, unit logs.
+    unread: Vec<String>,
+}
+
+/// A trial that could not be summarized, and why.
+#[derive(Debug, Serialize)]
+struct SkippedTrial {
+    payload: String,
+    trial: u32,
+    log: String,
+    reason: String,
 }
 
 /// The clamp over one trial's ticks that ran a phase policy (every unit pooled).
@@ -459,8 +593,9 @@ struct ClampStats {
 }
 
 impl ClampStats {
-    /// From the unit logs in `folder`; unreadable logs are reported, missing ones give `None`.
-    fn of_trial(folder: &Path) -> Result<Option<ClampStats>> {
+    /// From the unit logs in `folder` (`None` when it has none); what of them could not be
+    /// read is added to `unread`, and an unreadable log is left out.
+    fn of_trial(folder: &Path, unread: &mut Vec<String>) -> Option<ClampStats> {
         use moonhaul_coord::HoldReason;
         let (mut n, mut t_sum, mut clamped, mut held) = (0u64, 0.0, 0u64, 0u64);
         let mut any = false;
@@ -469,8 +604,22 @@ impl ClampStats {
             if !path.exists() {
                 break;
             }
+            let contents = match read_unit_log_contents(&path) {
+                Ok(contents) => contents,
+                Err(e) => {
+                    unread.push(format!("{e}: left out of the clamp figures"));
+                    continue;
+                }
+            };
+            if let LogEnd::Truncated { file_bytes } = contents.end {
+                unread.push(format!(
+                    "{} ends without its footer ({file_bytes} bytes): read {} ticks",
+                    path.display(),
+                    contents.records.len()
+                ));
+            }
             any = true;
-            for r in moonhaul_deploy::mission_log::read_unit_log(&path)? {
+            for r in contents.records {
                 let running = r.phase.has_policy()
                     && matches!(r.hold, None | Some(HoldReason::NoAdmissibleStep));
                 if running {
@@ -481,7 +630,7 @@ impl ClampStats {
                 }
             }
         }
-        Ok(any.then(|| {
+        any.then(|| {
             let per = |k: u64| if n > 0 { k as f64 / n as f64 } else { 0.0 };
             ClampStats {
                 policy_ticks: n,
@@ -489,7 +638,7 @@ impl ClampStats {
                 clamped_fraction: per(clamped),
                 held_fraction: per(held),
             }
-        }))
+        })
     }
 }
 
@@ -524,11 +673,13 @@ struct Summary {
     dir: String,
     method: Method,
     trials: Vec<TrialSummary>,
+    /// Trials that could not be summarized.
+    skipped: Vec<SkippedTrial>,
     payloads: Vec<PayloadSummary>,
 }
 
 impl Summary {
-    fn new(dir: &Path, trials: Vec<TrialSummary>) -> Self {
+    fn new(dir: &Path, trials: Vec<TrialSummary>, skipped: Vec<SkippedTrial>) -> Self {
         let mut names: Vec<&str> = Vec::new();
         for t in &trials {
             if !names.contains(&t.payload.as_str()) {
@@ -573,6 +724,7 @@ impl Summary {
                 phase_source: "unit 0's reported phase, else any unit's, else the last known",
             },
             trials,
+            skipped,
             payloads,
         }
     }
@@ -624,6 +776,18 @@ impl Summary {
                     None => "yes".to_owned(),
                     Some(why) => format!("no: {why}"),
                 }
+            );
+        }
+        for t in &self.trials {
+            for note in &t.unread {
+                let _ = writeln!(out, "{}/trial-{}: {note}", t.payload, t.trial);
+            }
+        }
+        for s in &self.skipped {
+            let _ = writeln!(
+                out,
+                "{}/trial-{}: not summarized: {}",
+                s.payload, s.trial, s.reason
             );
         }
         if self.trials.iter().any(|t| !t.metrics.settled_after_idle) {
@@ -741,17 +905,19 @@ impl Profile {
     }
 }
 
-/// The mean of `profiles` on a grid of [`GRID_STEP_S`] from the first Lift frame; where some
-/// trials have ended, the mean of those still running.
+/// The mean of `profiles` on a grid of [`GRID_STEP_S`] (or coarser, at most
+/// [`MAX_GRID_POINTS`]) from the first Lift frame to the end of the longest; where some trials
+/// have ended, the mean of those still running.
 fn mean_profile(profiles: &[Profile]) -> Vec<(f64, f64)> {
     let end = profiles
         .iter()
         .filter_map(|p| p.points.last().map(|q| q.0))
         .fold(0.0, f64::max);
-    let steps = (end / GRID_STEP_S).floor() as usize;
+    let step = GRID_STEP_S.max(end / MAX_GRID_POINTS as f64);
+    let steps = ((end / step).floor() as usize).min(MAX_GRID_POINTS);
     (0..=steps)
         .filter_map(|k| {
-            let t = k as f64 * GRID_STEP_S;
+            let t = k as f64 * step;
             let (sum, n) = profiles
                 .iter()
                 .filter_map(|p| p.at(t))
@@ -1071,6 +1237,8 @@ mod tests {
             payload_ground_contact: false,
             base_position_m: vec![[0.0; 3]; 2],
             base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
+            wheel_position_rad: vec![[0.0; 2]; 2],
+            arm_position_rad: vec![[0.0; 7]; 2],
             unit_phase: phases,
             grasp_closed: vec![true; 2],
         }
@@ -1084,7 +1252,8 @@ mod tests {
             frame(2, vec![None, None]),
             frame(3, vec![Some(Phase::Transport), Some(Phase::Lift)]),
         ];
-        let s = samples(&frames).unwrap();
+        let (s, left_out) = samples(&frames).unwrap();
+        assert!(left_out.is_empty(), "{left_out:?}");
         let phases: Vec<Phase> = s.iter().map(|s| s.phase).collect();
         assert_eq!(
             phases,
@@ -1092,9 +1261,41 @@ mod tests {
         );
         assert!(close(s[3].t_s, 0.06, 1e-12));
         assert!(samples(&[]).unwrap_err().to_string().contains("empty log"));
-        let mut backwards = frames.to_vec();
-        backwards[2].stamp_us = 0;
-        assert!(samples(&backwards).is_err());
+    }
+
+    #[test]
+    fn frames_outside_the_missions_span_are_left_out_and_named() {
+        let mut frames: Vec<WorldFrame> = (0..10)
+            .map(|k| frame(k, vec![Some(Phase::Lift); 2]))
+            .collect();
+        frames[2].stamp_us = 0;
+        frames[4].stamp_us = u64::MAX / 2;
+        frames[5].stamp_us = u64::MAX;
+        frames[7].payload_height_m = f64::NAN;
+        let (s, left_out) = samples(&frames).unwrap();
+        assert_eq!(s.len(), 6);
+        assert!(close(s.last().unwrap().t_s, 0.18, 1e-12), "{s:?}");
+        assert_eq!(left_out.len(), 3, "{left_out:?}");
+        assert!(left_out[0].contains("1 frame stamped before") && left_out[0].contains("tick 2"));
+        assert!(
+            left_out[1].contains("2 frames stamped more than") && left_out[1].contains("tick 4"),
+            "{left_out:?}"
+        );
+        assert!(left_out[2].contains("non-finite") && left_out[2].contains("tick 7"));
+    }
+
+    #[test]
+    fn the_profile_grid_is_bounded_whatever_the_span() {
+        let profile = |points: Vec<(f64, f64)>| Profile {
+            points,
+            transport_s: None,
+            place_s: None,
+            idle_s: None,
+        };
+        let long = profile(vec![(0.0, 0.0), (1e12, 1.0)]);
+        let mean = mean_profile(&[long]);
+        assert!(mean.len() <= MAX_GRID_POINTS + 1, "{}", mean.len());
+        assert!(close(mean.last().unwrap().0, 1e12, 1.0));
     }
 
     #[test]

@@ -1,51 +1,92 @@
-//! `moonhaul log summary` on a synthetic mission directory written with the world-log writer:
-//! two payloads, two trials each, with known heights and phase timing.
+//! `moonhaul log summary` on synthetic mission directories written with the world-log writer:
+//! two payloads, two trials each, with known heights and phase timing; an incomplete trial;
+//! frames stamped far beyond the mission; logs cut short at many offsets; errors.
 
 mod common;
 
 use std::path::Path;
 
+use moonhaul_core::config::repo_file;
 use moonhaul_core::state::Phase;
-use moonhaul_deploy::mission_log::WorldLog;
+use moonhaul_deploy::mission_log::{read_world_log_contents, LogInputs, WorldLog};
 use moonhaul_deploy::record::WorldFrame;
+
+/// The unit model and configs the test logs attach.
+fn inputs() -> LogInputs {
+    LogInputs::read(
+        &repo_file("assets/unit.urdf"),
+        &[repo_file("configs/tasks.toml")],
+    )
+    .unwrap()
+}
+
+/// A world frame of a two-unit team at rest but for the payload.
+fn frame(tick: u64, stamp_us: u64, phases: [Option<Phase>; 2], height_m: f64) -> WorldFrame {
+    WorldFrame {
+        tick,
+        stamp_us,
+        payload_position_m: [0.0, 0.0, height_m + 0.15],
+        payload_orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+        payload_height_m: height_m,
+        payload_tilt_deg: 0.3,
+        payload_ground_contact: height_m < 0.01,
+        base_position_m: vec![[0.0, -0.6, 0.0], [0.0, 0.6, 0.0]],
+        base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
+        wheel_position_rad: vec![[0.0; 2]; 2],
+        arm_position_rad: vec![[0.0; 7]; 2],
+        unit_phase: phases.to_vec(),
+        grasp_closed: vec![true; 2],
+    }
+}
 
 /// Frames every 20 ms: idle 0–1 s, lift 1–11 s (a ramp to `steady_m` over `ramp_s`), transport
 /// 11–31 s at `steady_m`, place 31–36 s (down to `settled_m` over 4 s), idle 36–38 s with the
 /// grasps open.
-fn write_trial(dir: &Path, steady_m: f64, ramp_s: f64, settled_m: f64) {
-    std::fs::create_dir_all(dir).unwrap();
-    let mut log = WorldLog::create(&dir.join("world.mcap"), [0.5, 0.4, 0.3], 2).unwrap();
-    for k in 0..=1900u64 {
-        let stamp_us = 5_000_000 + k * 20_000;
-        let t = (k * 20_000) as f64 * 1e-6;
-        let (phase, height) = match k {
-            0..50 => (Phase::Idle, 0.0),
-            50..550 => (Phase::Lift, (steady_m * (t - 1.0) / ramp_s).min(steady_m)),
-            550..1550 => (Phase::Transport, steady_m),
-            1550..1800 => (
-                Phase::Place,
-                steady_m - (steady_m - settled_m) * ((t - 31.0) / 4.0).min(1.0),
-            ),
-            _ => (Phase::Idle, settled_m),
-        };
-        log.write(&WorldFrame {
-            tick: k,
-            stamp_us,
-            payload_position_m: [0.1 * t, 0.0, height + 0.15],
-            payload_orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
-            payload_height_m: height,
-            payload_tilt_deg: 0.3,
-            payload_ground_contact: height < 0.01,
-            base_position_m: vec![[0.1 * t, -0.6, 0.1], [0.1 * t, 0.6, 0.1]],
-            base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
+fn trial_frames(steady_m: f64, ramp_s: f64, settled_m: f64) -> Vec<WorldFrame> {
+    (0..=1900u64)
+        .map(|k| {
+            let stamp_us = 5_000_000 + k * 20_000;
+            let t = (k * 20_000) as f64 * 1e-6;
+            let (phase, height) = match k {
+                0..50 => (Phase::Idle, 0.0),
+                50..550 => (Phase::Lift, (steady_m * (t - 1.0) / ramp_s).min(steady_m)),
+                550..1550 => (Phase::Transport, steady_m),
+                1550..1800 => (
+                    Phase::Place,
+                    steady_m - (steady_m - settled_m) * ((t - 31.0) / 4.0).min(1.0),
+                ),
+                _ => (Phase::Idle, settled_m),
+            };
             // Unit 0 is silent on odd ticks: the phase falls back to unit 1's.
-            unit_phase: vec![(k % 2 == 0).then_some(phase), Some(phase)],
+            let mut f = frame(
+                k,
+                stamp_us,
+                [(k % 2 == 0).then_some(phase), Some(phase)],
+                height,
+            );
+            f.payload_position_m[0] = 0.1 * t;
+            f.base_position_m = vec![[0.1 * t, -0.6, 0.0], [0.1 * t, 0.6, 0.0]];
             // The grippers open once the placement ends.
-            grasp_closed: vec![k < 1800; 2],
+            f.grasp_closed = vec![k < 1800; 2];
+            f
         })
-        .unwrap();
+        .collect()
+}
+
+fn write_log(path: &Path, frames: &[WorldFrame]) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    let mut log = WorldLog::create(path, [0.5, 0.4, 0.3], 2, &inputs()).unwrap();
+    for f in frames {
+        log.write(f).unwrap();
     }
     log.finish().unwrap();
+}
+
+fn write_trial(dir: &Path, steady_m: f64, ramp_s: f64, settled_m: f64) {
+    write_log(
+        &dir.join("world.mcap"),
+        &trial_frames(steady_m, ramp_s, settled_m),
+    );
 }
 
 fn mission(dir: &Path) {
@@ -140,31 +181,18 @@ fn summary_flags_an_incomplete_trial() {
     let dir = tempfile::tempdir().unwrap();
     let trial = dir.path().join("bricks/trial-0");
     std::fs::create_dir_all(&trial).unwrap();
-    let mut log = WorldLog::create(&trial.join("world.mcap"), [0.5, 0.4, 0.3], 2).unwrap();
     // Lift 0–5 s, then held in transport until the log ends at 15 s.
-    for k in 0..=750u64 {
-        let phase = if k < 250 {
-            Phase::Lift
-        } else {
-            Phase::Transport
-        };
-        log.write(&WorldFrame {
-            tick: k,
-            stamp_us: k * 20_000,
-            payload_position_m: [0.0, 0.0, 0.3],
-            payload_orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
-            payload_height_m: 0.2,
-            payload_tilt_deg: 0.0,
-            payload_ground_contact: false,
-            base_position_m: vec![[0.0; 3]; 2],
-            base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
-            unit_phase: vec![Some(phase); 2],
-            // The grippers open once the placement ends.
-            grasp_closed: vec![k < 1800; 2],
+    let frames: Vec<WorldFrame> = (0..=750u64)
+        .map(|k| {
+            let phase = if k < 250 {
+                Phase::Lift
+            } else {
+                Phase::Transport
+            };
+            frame(k, k * 20_000, [Some(phase); 2], 0.2)
         })
-        .unwrap();
-    }
-    log.finish().unwrap();
+        .collect();
+    write_log(&trial.join("world.mcap"), &frames);
     let out = common::stdout(&common::moonhaul(&[
         "log",
         "summary",
@@ -191,33 +219,15 @@ fn summary_errors_name_the_file_at_fault() {
     common::fails_naming(&["log", "summary", arg], missing.to_str().unwrap());
 
     // A world log with no frames.
-    WorldLog::create(&missing, [0.5, 0.4, 0.3], 2)
-        .unwrap()
-        .finish()
-        .unwrap();
+    write_log(&missing, &[]);
     let e = common::fails_naming(&["log", "summary", arg], missing.to_str().unwrap());
     assert!(e.contains("empty log"), "{e}");
 
     // A trial in which no unit ever lifted.
-    let mut log = WorldLog::create(&missing, [0.5, 0.4, 0.3], 2).unwrap();
-    for k in 0..10 {
-        log.write(&WorldFrame {
-            tick: k,
-            stamp_us: k * 20_000,
-            payload_position_m: [0.0; 3],
-            payload_orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
-            payload_height_m: 0.0,
-            payload_tilt_deg: 0.0,
-            payload_ground_contact: true,
-            base_position_m: vec![[0.0; 3]; 2],
-            base_orientation_xyzw: vec![[0.0, 0.0, 0.0, 1.0]; 2],
-            unit_phase: vec![Some(Phase::Idle); 2],
-            // The grippers open once the placement ends.
-            grasp_closed: vec![k < 1800; 2],
-        })
-        .unwrap();
-    }
-    log.finish().unwrap();
+    let idle: Vec<WorldFrame> = (0..10)
+        .map(|k| frame(k, k * 20_000, [Some(Phase::Idle); 2], 0.0))
+        .collect();
+    write_log(&missing, &idle);
     let e = common::fails_naming(&["log", "summary", arg], missing.to_str().unwrap());
     assert!(e.contains("lift"), "{e}");
 
@@ -226,5 +236,124 @@ fn summary_errors_name_the_file_at_fault() {
     common::fails_naming(
         &["log", "summary", empty.path().to_str().unwrap()],
         "holds no trials",
+    );
+}
+
+fn summary_json(dir: &Path) -> serde_json::Value {
+    let out = common::stdout(&common::moonhaul(&[
+        "log",
+        "summary",
+        dir.to_str().unwrap(),
+        "--json",
+    ]));
+    serde_json::from_str(&out).unwrap()
+}
+
+#[test]
+fn frames_stamped_beyond_the_mission_are_left_out_and_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut frames = trial_frames(0.240, 8.0, 0.008);
+    let whole = frames.clone();
+    // A stamp decades ahead in the middle, and a last frame at the end of the clock: the grid
+    // of the profile would walk to them.
+    frames[700].stamp_us = 1 << 60;
+    let mut last = frames.last().unwrap().clone();
+    last.tick += 1;
+    last.stamp_us = u64::MAX;
+    frames.push(last);
+    write_log(&dir.path().join("box/trial-0/world.mcap"), &frames);
+    write_log(&dir.path().join("box/trial-1/world.mcap"), &whole);
+    let summary = summary_json(dir.path());
+    let [cut, clean] = [&summary["trials"][0], &summary["trials"][1]];
+    for key in [
+        "steady_height_mm",
+        "time_to_95_s",
+        "settled_height_mm",
+        "duration_s",
+    ] {
+        close(&cut[key], clean[key].as_f64().unwrap(), 1e-9);
+    }
+    assert_eq!(cut["completed"], true);
+    let unread = cut["unread"].as_array().unwrap();
+    assert_eq!(unread.len(), 1, "{unread:?}");
+    let note = unread[0].as_str().unwrap();
+    assert!(
+        note.contains("2 frames")
+            && note.contains("beyond the mission's span")
+            && note.contains("tick 700"),
+        "{note}"
+    );
+    assert!(clean["unread"].as_array().unwrap().is_empty());
+    let png = std::fs::metadata(dir.path().join("mission_profile.png")).unwrap();
+    assert!(png.len() > 5_000);
+}
+
+#[test]
+fn a_log_cut_anywhere_summarizes_all_but_its_last_second() {
+    let source = tempfile::tempdir().unwrap();
+    let full_path = source.path().join("world.mcap");
+    let frames = trial_frames(0.240, 8.0, 0.008);
+    write_log(&full_path, &frames);
+    let bytes = std::fs::read(&full_path).unwrap();
+    let last_us = frames.last().unwrap().stamp_us;
+    let read = |len: usize| {
+        let path = source.path().join("cut.mcap");
+        std::fs::write(&path, &bytes[..len]).unwrap();
+        read_world_log_contents(&path).unwrap()
+    };
+    // The longest cut that loses frames ends inside the last chunk.
+    let mut in_last_chunk = bytes.len();
+    while read(in_last_chunk).records.len() == frames.len() {
+        in_last_chunk -= 16;
+    }
+    let kept = read(in_last_chunk).records;
+    let kept_us = kept.last().unwrap().stamp_us;
+    assert!(
+        kept_us + 1_000_000 >= last_us,
+        "a cut in the last chunk kept frames up to {kept_us} µs of {last_us} µs"
+    );
+
+    // A mission directory of cuts: a tenth of the file and on, the cut in the last chunk, and
+    // one inside the file's header.
+    let dir = tempfile::tempdir().unwrap();
+    let cuts: Vec<usize> = [0.1, 0.25, 0.5, 0.75, 0.9]
+        .iter()
+        .map(|f| (bytes.len() as f64 * f) as usize)
+        .chain([in_last_chunk, 20])
+        .collect();
+    for (k, cut) in cuts.iter().enumerate() {
+        let path = dir.path().join(format!("box/trial-{k}/world.mcap"));
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, &bytes[..*cut]).unwrap();
+    }
+    let summary = summary_json(dir.path());
+    let trials = summary["trials"].as_array().unwrap();
+    assert_eq!(trials.len(), cuts.len() - 1, "{summary}");
+    let mut last_duration = 0.0;
+    for (t, cut) in trials.iter().zip(&cuts) {
+        let duration = t["duration_s"].as_f64().unwrap();
+        assert!(duration > last_duration, "cut at {cut}: {duration} s");
+        last_duration = duration;
+        let note = t["unread"][0].as_str().unwrap();
+        assert!(
+            note.contains("ends without its footer")
+                && note.contains(&format!("trial-{}", t["trial"])),
+            "{note}"
+        );
+    }
+    // The cut in the last chunk: the whole mission but its last second.
+    let whole_s = (last_us - frames[0].stamp_us) as f64 * 1e-6;
+    assert!(
+        last_duration >= whole_s - 1.0,
+        "{last_duration} of {whole_s} s"
+    );
+    assert_eq!(trials[5]["completed"], true);
+    // The cut inside the header: named, with the file.
+    let skipped = summary["skipped"].as_array().unwrap();
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    let reason = skipped[0]["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("trial-6") && reason.contains("empty log"),
+        "{reason}"
     );
 }

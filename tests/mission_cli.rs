@@ -311,7 +311,7 @@ fn drive_faults_on_the_emulated_can_bus_latch_a_stop() {
             &sub,
             &keys,
             0,
-            "can",
+            "can-emulated",
             &["--listen", &listen],
             &["--inject", fault, "--max-runtime-s", "1.5"],
         );

@@ -22,7 +22,7 @@ use moonhaul_core::overwrite::RunInputs;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand};
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_deploy::cli_support::Signals;
-use moonhaul_deploy::mission_log::WorldLog;
+use moonhaul_deploy::mission_log::{LogInputs, WorldLog};
 use moonhaul_deploy::network::{self, Keys, NetworkSettings};
 use moonhaul_deploy::record::WorldFrame;
 use moonhaul_deploy::sim_link::{self, SimCommand, SimSensed};
@@ -148,7 +148,12 @@ pub async fn run(args: WorldArgs) -> Result<()> {
     let period_s = 1.0 / scene.config.control_hz;
     let payload_model = scene.payload(kind)?;
     let size = payload_model.half_extents_m * 2.0;
-    let mut log = WorldLog::create(&args.log, [size.x, size.y, size.z], UNITS)?;
+    let mut log = WorldLog::create(
+        &args.log,
+        [size.x, size.y, size.z],
+        UNITS,
+        &LogInputs::read(&scene.config.unit_urdf(), &log_inputs(&args))?,
+    )?;
     let keys = Keys::new(&args.team);
     let session = network::open(&NetworkSettings {
         connect: Vec::new(),
@@ -355,9 +360,29 @@ fn frame(tick: u64, state: &EnvState, phases: &[Option<Phase>]) -> WorldFrame {
         payload_ground_contact: p.ground_contact,
         base_position_m: bases.iter().map(|b| b.0).collect(),
         base_orientation_xyzw: bases.iter().map(|b| b.1).collect(),
+        wheel_position_rad: state
+            .units
+            .iter()
+            .map(|u| u.state.wheels.position_rad)
+            .collect(),
+        arm_position_rad: state
+            .units
+            .iter()
+            .map(|u| u.state.arm.position_rad)
+            .collect(),
         unit_phase: phases.to_vec(),
         grasp_closed: state.units.iter().map(|u| u.grasp.attached).collect(),
     }
+}
+
+/// The configs the world reads, which its log attaches beside the unit URDF: the simulator's,
+/// the tasks', and the payload's URDF when it was given as a file.
+fn log_inputs(args: &WorldArgs) -> Vec<PathBuf> {
+    let mut files = vec![args.sim.clone(), args.tasks.clone()];
+    if let PayloadArg::File(path) = &args.payload {
+        files.push(path.clone());
+    }
+    files
 }
 
 /// Writes `value` as JSON, whole or not at all.

@@ -502,6 +502,15 @@ pub struct Joint {
 }
 
 impl Joint {
+    /// The child link frame in the parent link frame at joint value `q` (rad or m; ignored
+    /// for a fixed joint): `origin · M(q)`.
+    pub fn child_in_parent(&self, q: f64) -> Isometry3<f64> {
+        match &self.motion {
+            Some(motion) => self.origin * motion.transform(q),
+            None => self.origin,
+        }
+    }
+
     /// The URDF joint type: "fixed", "revolute", "continuous" or "prismatic".
     pub fn type_name(&self) -> &'static str {
         match self.motion.as_ref().map(|m| m.kind) {
@@ -952,6 +961,19 @@ mod tests {
             Vector3::z() * (q1 + q2),
         );
         assert_pose_eq(&chain.forward(&[q1, q2]).unwrap(), &expected);
+    }
+
+    #[test]
+    fn joint_transforms_compose_to_the_chain() {
+        let tree = tree(PLANAR).unwrap();
+        let chain = tree.chain("base", "hand").unwrap();
+        for q in [[0.0, 0.0], [0.4, -1.1], [-0.9, 2.5]] {
+            let j = |name: &str| tree.joint(name).unwrap();
+            let composed = j("shoulder").child_in_parent(q[0])
+                * j("elbow").child_in_parent(q[1])
+                * j("wrist").child_in_parent(123.0);
+            assert_pose_eq(&composed, &chain.forward(&q).unwrap());
+        }
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! `moonhaul-unit`, the per-robot daemon: one [`Onboard`] tick per control period over a
 //! unit-level hardware backend, peers and operator over zenoh, a mission log in MCAP.
 //!
-//! The loop runs on tokio. With `--hal mock` or `--hal can` it ticks on a fixed-rate interval
+//! The loop runs on tokio. With `--hal mock`, `can` or `can-emulated` it ticks on a fixed-rate interval
 //! (a late tick is counted as a deadline miss and the schedule skips ahead, never bursts); the
 //! clock is the system's (team-synchronized, e.g. PTP). With `--hal sim` it ticks on each of the
 //! simulated world's readings and the clock is the world's simulated time; in lockstep it also
@@ -24,13 +24,13 @@ use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::can::UnitCanConfig;
 use moonhaul_hal::mock::MockConfig;
 use moonhaul_hal::unit::{
-    emulated_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput, UnitReading,
-    UNIT_JOINTS,
+    emulated_unit, kernel_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput,
+    UnitReading, UNIT_JOINTS,
 };
 use tracing::{info, warn};
 
 use crate::cli_support::{load_policies, wall_us, Signals};
-use crate::mission_log::UnitLog;
+use crate::mission_log::{LogInputs, UnitLog};
 use crate::network::{self, Keys};
 use crate::record::TickRecord;
 use crate::sim_link::{self, SimHardware, SimSensed};
@@ -41,9 +41,12 @@ use moonhaul_core::scripted::MissionPlan;
 /// Which hardware backend the daemon drives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum HalKind {
-    /// The unit's nine CiA 402 drives (emulated on a virtual bus: this build has no kernel CAN
-    /// transport wired to the daemon).
+    /// The unit's nine CiA 402 drives on a kernel CAN interface (SocketCAN), named by
+    /// `--can-interface` (e.g. can0).
     Can,
+    /// The same CiA 402 master over an in-memory bus of emulated drives: the CAN path without
+    /// CAN hardware, with fault injection.
+    CanEmulated,
     /// Mock drives that mirror their commands, with fault injection.
     Mock,
     /// One unit of a simulated world running in another process (`moonhaul mission world`).
@@ -133,6 +136,9 @@ pub struct DaemonArgs {
     /// Hardware backend.
     #[arg(long, value_enum)]
     pub hal: HalKind,
+    /// With `--hal can`: the kernel CAN interface of the unit's drives (e.g. can0, vcan0).
+    #[arg(long, value_name = "NAME", required_if_eq("hal", "can"))]
+    pub can_interface: Option<String>,
     /// What drives the increments: the learned phase policies (the config's `policies`) or
     /// the scripted IK controller (the config's `mission` plan), through the same pipeline.
     #[arg(long, value_enum, default_value_t = ControllerKind::Learned)]
@@ -220,7 +226,7 @@ enum Hardware {
     Sim(Box<SimHardware>),
 }
 
-/// The CAN master on the emulated bus, as the daemon uses it.
+/// The CAN master, on a kernel interface or the emulated bus, as the daemon uses it.
 trait CanUnit: UnitHardware + FaultInjection {}
 impl<T: UnitHardware + FaultInjection> CanUnit for T {}
 
@@ -243,6 +249,26 @@ impl Hardware {
             }),
         }
     }
+}
+
+/// The configs a run reads, which its log attaches (beside the URDF): the unit config, the
+/// control rate, gate, clamp and tasks, the CAN drives' with a CAN backend, the scripted
+/// plan with the scripted controller. Never the key file.
+fn log_inputs(args: &DaemonArgs, config: &UnitConfig) -> Vec<PathBuf> {
+    let mut files = vec![
+        args.config.clone(),
+        moonhaul_core::config::resolve(&args.config, &config.control),
+        config.gate.clone(),
+        config.sync.clone(),
+        config.tasks.clone(),
+    ];
+    if matches!(args.hal, HalKind::Can | HalKind::CanEmulated) {
+        files.push(config.can.clone());
+    }
+    if args.controller == ControllerKind::Scripted {
+        files.push(config.mission.clone());
+    }
+    files
 }
 
 fn offset_us(t_us: u64, offset_ms: f64) -> u64 {
@@ -328,18 +354,34 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         ControllerKind::Scripted => Controller::Scripted(MissionPlan::load(&config.mission)?),
     };
     let period = Duration::from_micros(settings.control_period_us);
+    if args.can_interface.is_some() && args.hal != HalKind::Can {
+        bail!("--can-interface applies to --hal can only");
+    }
     let mut hardware = match args.hal {
         HalKind::Mock => Hardware::Mock(Box::new(mock_hardware(&config, &spec, period)?)),
         HalKind::Can => {
             let can = UnitCanConfig::from_file(&config.can)?;
+            let Some(interface) = args.can_interface.as_deref() else {
+                bail!("--hal can needs --can-interface NAME (e.g. can0)");
+            };
+            Hardware::Can(Box::new(kernel_unit(&can, interface).with_context(
+                || format!("bringing up the unit's CAN drives on {interface}"),
+            )?))
+        }
+        HalKind::CanEmulated => {
+            let can = UnitCanConfig::from_file(&config.can)?;
             Hardware::Can(Box::new(
-                emulated_unit(&can).context("bringing up the unit's CAN drives")?,
+                emulated_unit(&can).context("bringing up the unit's emulated CAN drives")?,
             ))
         }
         HalKind::Sim => Hardware::Sim(Box::new(SimHardware::new(unit))),
     };
     let mut log = match &args.log {
-        Some(path) => Some(UnitLog::create(path, unit)?),
+        Some(path) => Some(UnitLog::create(
+            path,
+            unit,
+            &LogInputs::read(&config.urdf, &log_inputs(&args, &config))?,
+        )?),
         None => None,
     };
     let session = network::open(&net).await?;
@@ -375,7 +417,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     // reading: it starts from 0 and the first message takes the clock then.
     let boot_us = match args.hal {
         HalKind::Sim => 0,
-        HalKind::Mock | HalKind::Can => offset_us(wall_us(), args.clock_offset_ms),
+        HalKind::Mock | HalKind::Can | HalKind::CanEmulated => {
+            offset_us(wall_us(), args.clock_offset_ms)
+        }
     };
     let mut onboard = Onboard::new(
         OnboardSettings {

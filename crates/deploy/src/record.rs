@@ -7,7 +7,7 @@
 use moonhaul_coord::message::RejectCounts;
 use moonhaul_coord::HoldReason;
 use moonhaul_core::stacked::StackedDistance;
-use moonhaul_core::state::{Phase, UnitCommand, UnitState};
+use moonhaul_core::state::{Phase, UnitCommand, UnitState, ARM_JOINTS, WHEEL_JOINTS};
 use serde::{Deserialize, Serialize};
 
 /// One control tick of one unit, everything needed to replay its decision.
@@ -94,6 +94,12 @@ pub struct WorldFrame {
     /// Each unit's base pose in the world frame (same layout as the payload's).
     pub base_position_m: Vec<[f64; 3]>,
     pub base_orientation_xyzw: Vec<[f64; 4]>,
+    /// Each unit's true joint positions, rad (wheels left, right; arm base to tip): where the
+    /// world log's `/tf` draws its links. Absent from logs written before they were recorded.
+    #[serde(default)]
+    pub wheel_position_rad: Vec<[f64; WHEEL_JOINTS]>,
+    #[serde(default)]
+    pub arm_position_rad: Vec<[f64; ARM_JOINTS]>,
     /// The phase each unit reported with its last command (`None`: no command this step).
     pub unit_phase: Vec<Option<Phase>>,
     /// Whether each unit's grasp still holds the payload.

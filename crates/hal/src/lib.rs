@@ -77,9 +77,9 @@ pub enum HalError {
 
 pub use moonhaul_core::state::JointReading;
 pub use unit::{
-    emulated_unit, emulated_unit_on, DriveUnit, FaultInjection, GraspModel, InjectedFault,
-    LoadShareGrasp, MockUnit, NoGrasp, UnitHardware, UnitOutput, UnitReading, INJECTED_EMCY_CODE,
-    INJECTED_MOTOR_FAULT_CODE, UNIT_JOINTS,
+    emulated_unit, emulated_unit_on, kernel_unit, DriveUnit, FaultInjection, GraspModel,
+    InjectedFault, LoadShareGrasp, MockUnit, NoGrasp, UnitHardware, UnitOutput, UnitReading,
+    INJECTED_EMCY_CODE, INJECTED_MOTOR_FAULT_CODE, UNIT_JOINTS,
 };
 
 /// Power-stage control and the control period, shared by both drive kinds.

@@ -7,8 +7,9 @@
 //! - [`DriveUnit`]: any [`WheelDrive`] plus any [`ArmDrive`] (so [`crate::limits::Limited`]
 //!   decorators compose), with an optional [`GraspModel`] for the gripper–payload force;
 //! - [`MockUnit`]: two [`MockDrive`]s and a [`LoadShareGrasp`], with [`FaultInjection`];
-//! - [`Cia402Master`]: the unit's nine CiA 402 drives on one CAN bus; on the [`VirtualBus`]
-//!   with emulated drives ([`emulated_unit`]) it also takes [`FaultInjection`].
+//! - [`Cia402Master`]: the unit's nine CiA 402 drives on one CAN bus: a kernel interface
+//!   ([`kernel_unit`], SocketCAN) or the [`VirtualBus`] with emulated drives
+//!   ([`emulated_unit`]), which also takes [`FaultInjection`].
 //!
 //! Joint indices are the unit's order: wheels first (left, right), then the arm base to tip,
 //! as [`moonhaul_core::unit::UnitSpec::joint_names`] lists them.
@@ -22,7 +23,7 @@ use moonhaul_core::state::{UnitCommand, ARM_JOINTS, WHEEL_JOINTS};
 use moonhaul_core::unit::UnitSpec;
 
 use crate::can::protocol::Message;
-use crate::can::{CanBus, Cia402Master, UnitCanConfig, VirtualBus};
+use crate::can::{CanBus, Cia402Master, SocketCanBus, UnitCanConfig, VirtualBus};
 use crate::mock::{MockConfig, MockDrive, MockFault};
 use crate::{ArmDrive, Drive, HalError, JointReading, Quantity, WheelDrive};
 
@@ -566,6 +567,33 @@ impl FaultInjection for Cia402Master<VirtualBus> {
         }
         Ok(())
     }
+}
+
+impl FaultInjection for Cia402Master<SocketCanBus> {
+    /// Refuses: a drill never breaks real drives on purpose (`--hal can-emulated` injects into
+    /// emulated ones).
+    fn inject(&mut self, fault: InjectedFault) -> Result<(), HalError> {
+        check_joint(self.bus().name(), fault)?;
+        Err(injection_error(
+            self.bus().name(),
+            fault,
+            "faults are injected into emulated drives only, not into real ones",
+        ))
+    }
+}
+
+/// The unit's nine drives on the kernel CAN interface `interface` (SocketCAN, e.g. `can0`)
+/// behind a CiA 402 master that has run start-up; `activate` enables them. Fails naming the
+/// interface when it cannot be opened (no AF_CAN in the kernel, no such interface) and naming
+/// the drive when one does not answer start-up.
+pub fn kernel_unit(
+    config: &UnitCanConfig,
+    interface: &str,
+) -> Result<Cia402Master<SocketCanBus>, HalError> {
+    let bus = SocketCanBus::open(interface).map_err(crate::can::CanError::from)?;
+    let mut master = Cia402Master::new(bus, config);
+    master.start_up()?;
+    Ok(master)
 }
 
 /// The unit's nine drives emulated on a [`VirtualBus`] behind a CiA 402 master that has run

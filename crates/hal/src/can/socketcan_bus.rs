@@ -9,6 +9,11 @@ use socketcan::{CanSocket, EmbeddedFrame, Id, Socket, StandardId};
 
 use super::{BusError, CanBus, CanFrame};
 
+/// Linux errno: address family not supported by protocol.
+const EAFNOSUPPORT: i32 = 97;
+/// Linux errno: no such device.
+const ENODEV: i32 = 19;
+
 pub struct SocketCanBus {
     socket: CanSocket,
     name: String,
@@ -16,12 +21,35 @@ pub struct SocketCanBus {
 }
 
 impl SocketCanBus {
-    /// Opens `interface` (e.g. `can0`, `vcan0`). Fails with the OS reason where the kernel has
-    /// no CAN support (EAFNOSUPPORT) or no such interface exists (ENODEV).
+    /// Opens `interface` (e.g. `can0`, `vcan0`). Each failure names the interface and what is
+    /// missing: the kernel's CAN address family (AF_CAN: no SocketCAN in this kernel, or its
+    /// `can`/`can_raw` modules not loaded), the interface itself, or the OS reason.
     pub fn open(interface: &str) -> Result<Self, BusError> {
-        let socket = CanSocket::open(interface).map_err(|e| BusError::Open {
+        let open_error = |reason: String| BusError::Open {
             bus: interface.to_owned(),
-            reason: e.to_string(),
+            reason,
+        };
+        // The kernel resolves the interface name before it creates a CAN socket, so a kernel
+        // without CAN would report a missing interface; a socket bound to every interface
+        // (index 0) asks for the address family alone first.
+        if let Err(e) = CanSocket::open_iface(0) {
+            return Err(open_error(match e.raw_os_error() {
+                Some(EAFNOSUPPORT) => format!(
+                    "this kernel has no SocketCAN: address family AF_CAN is not supported \
+                     ({e}); load the modules (modprobe can can_raw, and vcan for a virtual \
+                     interface) or use --hal can-emulated"
+                ),
+                _ => format!("cannot create an AF_CAN socket: {e}"),
+            }));
+        }
+        let socket = CanSocket::open(interface).map_err(|e| {
+            open_error(match e.raw_os_error() {
+                Some(ENODEV) => format!(
+                    "no such network interface ({e}); bring it up with `ip link` (see the \
+                     README's kernel CAN section)"
+                ),
+                _ => e.to_string(),
+            })
         })?;
         Ok(SocketCanBus {
             socket,
@@ -111,9 +139,20 @@ mod tests {
         assert_eq!(b.recv_until(deadline).unwrap(), None);
     }
 
+    /// Whether this kernel has SocketCAN loaded (its core creates `/proc/net/can`).
+    fn kernel_has_can() -> bool {
+        std::path::Path::new("/proc/net/can").exists()
+    }
+
     #[test]
-    fn opening_a_missing_interface_is_an_error_naming_it() {
-        let err = SocketCanBus::open("nosuchcan9").err().unwrap();
-        assert!(err.to_string().contains("nosuchcan9"), "{err}");
+    fn opening_a_missing_interface_is_an_error_naming_it_and_what_is_missing() {
+        let err = SocketCanBus::open("nosuchcan9").err().unwrap().to_string();
+        assert!(err.contains("nosuchcan9"), "{err}");
+        let missing = if kernel_has_can() {
+            "no such network interface"
+        } else {
+            "AF_CAN"
+        };
+        assert!(err.contains(missing), "{err}");
     }
 }
