@@ -6,6 +6,12 @@
 //! operator console (each gets a copy of the same file, over a channel you trust). The unit
 //! daemon reads it with `--keys FILE`. Rotating keys: generate a new file with a higher
 //! `--epoch` and give it to every member; frames under the old epoch are rejected from then on.
+//!
+//! The same file provisions the network: every zenoh session (unit, simulated world, operator
+//! console) authenticates with a user/password derived from it (`unit-<i>@<team>`,
+//! `operator@<team>`, `world@<team>`; the password an HMAC of the role's key), and zenoh's
+//! access control lets each role publish only its own keys. Nothing else is generated or copied;
+//! rotating the file rotates them (`moonhaul_deploy::network` documents the scheme).
 
 use std::path::{Path, PathBuf};
 

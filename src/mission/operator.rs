@@ -20,7 +20,7 @@ use moonhaul_coord::message::{
 use moonhaul_coord::Validator;
 use moonhaul_core::state::Phase;
 use moonhaul_deploy::cli_support::wall_us;
-use moonhaul_deploy::network::{self, Keys, NetworkSettings};
+use moonhaul_deploy::network::{self, Access, Keys, NetworkSettings, Role};
 
 #[derive(Debug, clap::Args)]
 pub struct ConsoleArgs {
@@ -59,10 +59,15 @@ pub struct Console {
 impl Console {
     pub async fn open(keys_path: &std::path::Path, connect: &[String]) -> Result<Console> {
         let keys = KeyFile::load(keys_path)?;
-        let session = network::open(&NetworkSettings {
-            connect: connect.to_vec(),
-            listen: Vec::new(),
-        })
+        let access = Access::new(&keys, Role::Operator)
+            .with_context(|| format!("key file {}", keys_path.display()))?;
+        let session = network::open(
+            &NetworkSettings {
+                connect: connect.to_vec(),
+                listen: Vec::new(),
+            },
+            &access,
+        )
         .await?;
         let k = Keys::new(keys.team());
         let publisher = network::control_publisher(&session, k.operator()).await?;

@@ -446,6 +446,8 @@ async fn trial_run(
         .args(["mission", "world", "--payload", &payload_text])
         .args(["--seed", &seed.to_string()])
         .args(["--team", &unit_config.team])
+        .arg("--keys")
+        .arg(&launch.keys)
         .args(["--listen", &endpoint])
         .args(["--sim", WORLD_SIM_CONFIG, "--tasks", WORLD_TASK_CONFIG])
         .arg("--log")

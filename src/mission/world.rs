@@ -18,12 +18,13 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use moonhaul_coord::KeyFile;
 use moonhaul_core::overwrite::RunInputs;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand};
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_deploy::cli_support::Signals;
 use moonhaul_deploy::mission_log::{LogInputs, WorldLog};
-use moonhaul_deploy::network::{self, Keys, NetworkSettings};
+use moonhaul_deploy::network::{self, Access, Keys, NetworkSettings, Role};
 use moonhaul_deploy::record::WorldFrame;
 use moonhaul_deploy::sim_link::{self, SimCommand, SimSensed};
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
@@ -59,6 +60,9 @@ pub struct WorldArgs {
     /// The team whose units this world serves.
     #[arg(long, default_value = "moonhaul")]
     pub team: String,
+    /// The team's key file: the world's network credentials derive from it.
+    #[arg(long, value_name = "FILE")]
+    pub keys: PathBuf,
     /// Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable).
     #[arg(long, value_name = "ENDPOINT", required = true)]
     pub listen: Vec<String>,
@@ -155,10 +159,24 @@ pub async fn run(args: WorldArgs) -> Result<()> {
         &LogInputs::read(&scene.config.unit_urdf(), &log_inputs(&args))?,
     )?;
     let keys = Keys::new(&args.team);
-    let session = network::open(&NetworkSettings {
-        connect: Vec::new(),
-        listen: args.listen.clone(),
-    })
+    let key_file = KeyFile::load(&args.keys)?;
+    if key_file.team() != args.team {
+        bail!(
+            "key file {} is for team {:?}, not the world's team {:?}",
+            args.keys.display(),
+            key_file.team(),
+            args.team
+        );
+    }
+    let access = Access::new(&key_file, Role::World)
+        .with_context(|| format!("key file {}", args.keys.display()))?;
+    let session = network::open(
+        &NetworkSettings {
+            connect: Vec::new(),
+            listen: args.listen.clone(),
+        },
+        &access,
+    )
     .await?;
     let mut publishers = Vec::with_capacity(UNITS);
     for i in 0..UNITS {

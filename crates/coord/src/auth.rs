@@ -749,6 +749,19 @@ impl Verifier {
     }
 }
 
+/// Secrets for other protocols, derived from the key file so that a team provisions nothing
+/// new (the zenoh transport's credentials, `moonhaul_deploy::network`).
+impl KeyFile {
+    /// `HMAC-SHA256(key of sender, purpose)`: independent secrets for distinct purposes, none
+    /// of which reveals the key. The caller puts the team, epoch and role into `purpose`.
+    pub fn derive_secret(&self, sender: Sender, purpose: &str) -> Result<[u8; 32], KeyMismatch> {
+        let key = self.key(sender).ok_or(KeyMismatch::NoKey { sender })?;
+        let mut mac = key.mac();
+        mac.update(purpose.as_bytes());
+        Ok(mac.finalize().into_bytes().into())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

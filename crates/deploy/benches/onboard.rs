@@ -21,7 +21,7 @@ use moonhaul_core::config::repo_file;
 use moonhaul_core::state::PlanarPose;
 use moonhaul_deploy::cli_support::{load_policies, wall_us};
 use moonhaul_deploy::daemon::mock_hardware;
-use moonhaul_deploy::network::{self, Keys, NetworkSettings};
+use moonhaul_deploy::network::{self, Access, Keys, NetworkSettings, Role};
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
 use moonhaul_deploy::unit_config::UnitConfig;
@@ -94,19 +94,26 @@ struct Link {
 }
 
 impl Link {
-    async fn open() -> Link {
+    async fn open(keys: &KeyFile) -> Link {
         let port = network::free_loopback_port().unwrap();
         let endpoint = format!("tcp/127.0.0.1:{port}");
-        let a = network::open(&NetworkSettings {
-            connect: vec![],
-            listen: vec![endpoint.clone()],
-        })
+        let access = |i| Access::new(keys, Role::Unit(i)).unwrap();
+        let a = network::open(
+            &NetworkSettings {
+                connect: vec![],
+                listen: vec![endpoint.clone()],
+            },
+            &access(0),
+        )
         .await
         .unwrap();
-        let b = network::open(&NetworkSettings {
-            connect: vec![endpoint],
-            listen: vec![],
-        })
+        let b = network::open(
+            &NetworkSettings {
+                connect: vec![endpoint],
+                listen: vec![],
+            },
+            &access(1),
+        )
         .await
         .unwrap();
         let k = Keys::new("moonhaul");
@@ -231,7 +238,7 @@ fn tick_latency(ticks: usize) {
 
 async fn peer_round_trip(pings: usize) {
     let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
-    let link = Link::open().await;
+    let link = Link::open(&keys).await;
     let [pub_a, pub_b] = &link.publishers;
     let [sub_a, sub_b] = &link.subscribers;
     let boot = 1_000_000_000;
@@ -279,7 +286,7 @@ async fn halt_latency(trials: usize) {
             sessions,
             publishers: [pub0, pub1],
             subscribers: [sub0, sub1],
-        } = Link::open().await;
+        } = Link::open(&keys).await;
         let mut u1 = unit(1, &keys, wall_us());
         let boot = wall_us();
         let mut u0 = unit(0, &keys, boot);

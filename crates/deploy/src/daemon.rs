@@ -11,6 +11,7 @@
 //! deactivated and the log is finished before the process exits.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
@@ -27,11 +28,12 @@ use moonhaul_hal::unit::{
     emulated_unit, kernel_unit, FaultInjection, InjectedFault, MockUnit, UnitHardware, UnitOutput,
     UnitReading, UNIT_JOINTS,
 };
+use tokio::sync::Notify;
 use tracing::{info, warn};
 
 use crate::cli_support::{load_policies, wall_us, Signals};
 use crate::mission_log::{LogInputs, UnitLog};
-use crate::network::{self, Keys};
+use crate::network::{self, Access, FrameQueue, Keys, Outbox, QueueCounts, Role};
 use crate::record::TickRecord;
 use crate::sim_link::{self, SimHardware, SimSensed};
 use crate::tick::{Controller, Onboard, OnboardSettings};
@@ -257,7 +259,7 @@ impl Hardware {
 fn log_inputs(args: &DaemonArgs, config: &UnitConfig) -> Vec<PathBuf> {
     let mut files = vec![
         args.config.clone(),
-        moonhaul_core::config::resolve(&args.config, &config.control),
+        config.control.clone(),
         config.gate.clone(),
         config.sync.clone(),
         config.tasks.clone(),
@@ -384,29 +386,10 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         )?),
         None => None,
     };
-    let session = network::open(&net).await?;
-    let keyx = Keys::new(&settings.team);
-    // This unit's own key: the team subscription delivers its own state too, which is skipped.
-    let own_key = keyx.unit_state(unit);
-    let state_pub = network::control_publisher(&session, own_key.clone()).await?;
-    let peers = session
-        .declare_subscriber(keyx.all_unit_states())
-        .await
-        .map_err(|e| anyhow::anyhow!("zenoh subscriber: {e}"))?;
-    let operator = session
-        .declare_subscriber(keyx.operator())
-        .await
-        .map_err(|e| anyhow::anyhow!("zenoh subscriber: {e}"))?;
-    let sim_io = if args.hal == HalKind::Sim {
-        let sensed = session
-            .declare_subscriber(keyx.sim_sensed(unit))
-            .await
-            .map_err(|e| anyhow::anyhow!("zenoh subscriber: {e}"))?;
-        let command = network::control_publisher(&session, keyx.sim_command(unit)).await?;
-        Some((sensed, command))
-    } else {
-        None
-    };
+    let access = Access::new(&keys, Role::Unit(unit))
+        .with_context(|| format!("key file {}", args.keys.display()))?;
+    let session = network::open(&net, &access).await?;
+    let links = Links::open(&session, &settings.team, unit, settings.team_size, args.hal).await?;
 
     hardware
         .unit()
@@ -442,6 +425,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         last_frame: None,
         first_by: started + Duration::from_secs_f64(args.world_wait_s),
         first_wait_s: args.world_wait_s,
+        key: Keys::new(&settings.team).sim_sensed(unit),
         runtime_by: args
             .max_runtime_s
             .map(|m| started + Duration::from_secs_f64(m)),
@@ -453,7 +437,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let mut pending = args.inject.clone();
     let mut drop_peers = false;
     let mut deadline_misses = 0u64;
-    let mut last_rejections = 0u64;
+    let mut report = Report::default();
     let lockstep = args.hal == HalKind::Sim && !args.realtime;
     let mut inbox = Inbox {
         validator,
@@ -465,13 +449,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         let wake = tokio::select! {
             biased;
             why = signals.recv() => Wake::Stop(Stop::Signal(why)),
-            w = next_tick(
-                &mut interval,
-                sim_io.as_ref().map(|(s, _)| s),
-                &mut hardware,
-                unit,
-                &mut world,
-            ) => w,
+            w = next_tick(&mut interval, links.sensed.as_ref(), &mut hardware, unit, &mut world) => w,
         };
         let now_us = match wake {
             Wake::Stop(why) => break why,
@@ -506,8 +484,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         inbox.release(&mut onboard, now_us);
         if lockstep {
             wait_for_peers(
-                &peers,
-                &own_key,
+                &links,
                 &mut inbox,
                 &mut onboard,
                 now_us,
@@ -526,15 +503,10 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             }
             onboard.latch_fault(FaultKind::Drive, "drive fault");
         }
-        drain(
-            &peers,
-            &own_key,
-            &mut inbox,
-            &mut onboard,
-            now_us,
-            drop_peers,
-        );
-        drain(&operator, &own_key, &mut inbox, &mut onboard, now_us, false);
+        for (_, queue) in &links.peers {
+            drain(queue, &mut inbox, &mut onboard, now_us, drop_peers);
+        }
+        drain(&links.operator, &mut inbox, &mut onboard, now_us, false);
         let before = onboard.phase();
         let out = onboard.tick(
             now_us,
@@ -551,29 +523,19 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             warn!(unit, error = %e, "hardware write failed");
             onboard.latch_fault(FaultKind::Drive, "hardware write failed");
         }
-        if let (Hardware::Sim(hw), Some((_, command_pub))) = (&mut hardware, &sim_io) {
+        if let (Hardware::Sim(hw), Some(commands)) = (&mut hardware, &links.commands) {
             if let Some(c) = hw.take_command() {
-                if let Err(e) = network::put(command_pub, &sim_link::encode(&c)).await {
-                    warn!(unit, error = %e, "sim link publish failed");
-                }
+                commands.send(&sim_link::encode(&c));
             }
         }
         match sealed {
-            Ok(()) => {
-                if let Err(e) = network::put(&state_pub, &frame).await {
-                    warn!(unit, error = %e, "state publish failed");
-                }
-            }
+            Ok(()) => links.state.send(&frame),
             Err(e) => warn!(unit, error = %e, "state message not sent"),
         }
         if record.phase != before {
             info!(unit, from = %before, to = %record.phase, t_s = elapsed_s, "phase");
         }
-        let rejected = inbox.validator.counts().total();
-        if rejected > last_rejections {
-            warn!(unit, total = rejected, counts = ?inbox.validator.counts(), "messages rejected");
-            last_rejections = rejected;
-        }
+        report.tick(unit, &inbox.validator, &links);
         let work = work_start.elapsed();
         if args.hal != HalKind::Sim && work > period {
             deadline_misses += 1;
@@ -591,6 +553,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         reason = %stop,
         "stopping: holding and flushing the log"
     );
+    report.totals(unit, &inbox.validator, &links);
     // The hold: wheels stopped, arm at its last command (a loaded arm stays where it is), or at
     // its sensed position if no command was issued yet; then torque off.
     let mut hold = UnitReading::default();
@@ -604,12 +567,13 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             command,
             grasp_open: record.grasp_open,
         });
-        if let (Hardware::Sim(hw), Some((_, command_pub))) = (&mut hardware, &sim_io) {
+        if let (Hardware::Sim(hw), Some(commands)) = (&mut hardware, &links.commands) {
             if let Some(c) = hw.take_command() {
-                let _ = network::put(command_pub, &sim_link::encode(&c)).await;
+                commands.send(&sim_link::encode(&c));
             }
         }
     }
+    links.close().await;
     if let Err(e) = hardware.unit().deactivate() {
         warn!(unit, error = %e, "deactivating the drives");
     }
@@ -658,6 +622,8 @@ struct WorldWatch {
     /// The first reading must come by then (`--world-wait-s` after start-up).
     first_by: tokio::time::Instant,
     first_wait_s: f64,
+    /// The world's reading key, for the error that names it.
+    key: String,
     /// `--max-runtime-s` in wall time, which holds until the world's clock takes over.
     runtime_by: Option<tokio::time::Instant>,
 }
@@ -666,12 +632,12 @@ struct WorldWatch {
 /// the bounds of `world`.
 async fn next_tick(
     interval: &mut tokio::time::Interval,
-    sensed: Option<&Subscriber>,
+    sensed: Option<&(Arc<FrameQueue>, Arc<Notify>)>,
     hardware: &mut Hardware,
     unit: usize,
     world: &mut WorldWatch,
 ) -> Wake {
-    let Some(sub) = sensed else {
+    let Some((queue, ready)) = sensed else {
         interval.tick().await;
         return Wake::Tick(wall_us());
     };
@@ -680,7 +646,7 @@ async fn next_tick(
             t + WORLD_SILENCE,
             format!(
                 "the simulated world fell silent: no frame on {} for {} s",
-                sub.key_expr(),
+                world.key,
                 WORLD_SILENCE.as_secs()
             ),
         ),
@@ -690,40 +656,35 @@ async fn next_tick(
                 "no reading from the simulated world on {} within {} s of start-up \
                  (--world-wait-s): is `moonhaul mission world` running and reachable at this \
                  unit's --connect endpoints?",
-                sub.key_expr(),
-                world.first_wait_s
+                world.key, world.first_wait_s
             ),
         ),
     };
     let runtime_by = world.runtime_by.filter(|_| world.last_frame.is_none());
-    let sample = tokio::select! {
+    tokio::select! {
         biased;
-        s = tokio::time::timeout_at(deadline, sub.recv_async()) => s,
+        heard = tokio::time::timeout_at(deadline, ready.notified()) => {
+            if heard.is_err() {
+                return Wake::Stop(Stop::WorldLost(lost));
+            }
+        }
         _ = tokio::time::sleep_until(runtime_by.unwrap_or(deadline)), if runtime_by.is_some() => {
             return Wake::Stop(Stop::RuntimeLimit);
         }
-    };
-    let sample = match sample {
-        Ok(Ok(sample)) => sample,
-        Ok(Err(_)) => return Wake::Stop(Stop::WorldLost("the world's link closed".into())),
-        Err(_) => return Wake::Stop(Stop::WorldLost(lost)),
-    };
-    world.last_frame = Some(tokio::time::Instant::now());
-    let mut newest = match SimSensed::decode(&sample.payload().to_bytes(), unit) {
-        Ok(s) => s,
-        Err(e) => {
-            warn!(unit, error = %e, "dropped a sim link frame");
-            return Wake::Skip;
-        }
-    };
-    // Drain to the newest reading: a unit never ticks on old news.
-    while let Ok(Some(more)) = sub.try_recv() {
-        if let Ok(m) = SimSensed::decode(&more.payload().to_bytes(), unit) {
-            if m.tick >= newest.tick {
-                newest = m;
-            }
-        }
     }
+    world.last_frame = Some(tokio::time::Instant::now());
+    // Drain to the newest reading: a unit never ticks on old news.
+    let mut newest: Option<SimSensed> = None;
+    queue.drain(
+        |sample| match SimSensed::decode(&sample.payload().to_bytes(), unit) {
+            Ok(m) if newest.is_none_or(|n| m.tick >= n.tick) => newest = Some(m),
+            Ok(_) => {}
+            Err(e) => warn!(unit, error = %e, "dropped a sim link frame"),
+        },
+    );
+    let Some(newest) = newest else {
+        return Wake::Skip;
+    };
     let Hardware::Sim(hw) = hardware else {
         return Wake::Skip;
     };
@@ -735,36 +696,160 @@ async fn next_tick(
     Wake::Tick(newest.stamp_us)
 }
 
-type Subscriber =
-    zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>;
+/// Frames one peer may have waiting between two ticks: it sends one a tick, so this covers a
+/// stall of several ticks; older news than that is worth nothing.
+const PEER_QUEUE_FRAMES: usize = 8;
+/// Operator frames waiting between two ticks: commands are rare; a burst beyond this is a
+/// flood, of which the newest are kept.
+const OPERATOR_QUEUE_FRAMES: usize = 16;
+/// The world's readings waiting: only the newest is used.
+const SENSED_QUEUE_FRAMES: usize = 4;
+/// How long the hold command at shutdown may take to go out.
+const LAST_COMMAND_WAIT: Duration = Duration::from_millis(200);
 
-/// Validates and takes in every message waiting on `sub` (this unit's own state, which the
-/// team subscription also delivers, is skipped).
-fn drain(
-    sub: &Subscriber,
-    own_key: &str,
-    inbox: &mut Inbox,
-    onboard: &mut Onboard,
-    now_us: u64,
-    drop: bool,
-) {
-    while let Ok(Some(sample)) = sub.try_recv() {
-        if !drop {
-            take(&sample, own_key, inbox, onboard, now_us);
+/// The daemon's network I/O: one receive queue per peer (a flood on one key cannot push out
+/// another's frames), one for the operator, one for the world's readings with `--hal sim`, and
+/// the outboxes of its own state and drive commands. Its own publications never reach it.
+struct Links {
+    peers: Vec<(usize, Arc<FrameQueue>)>,
+    peer_ready: Arc<Notify>,
+    operator: Arc<FrameQueue>,
+    sensed: Option<(Arc<FrameQueue>, Arc<Notify>)>,
+    state: Outbox,
+    commands: Option<Outbox>,
+    /// Kept for their callbacks; dropping one undeclares it.
+    _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+}
+
+impl Links {
+    async fn open(
+        session: &zenoh::Session,
+        team: &str,
+        unit: usize,
+        team_size: usize,
+        hal: HalKind,
+    ) -> Result<Links> {
+        let keys = Keys::new(team);
+        let mut subscribers = Vec::new();
+        let peer_ready = Arc::new(Notify::new());
+        let mut peers = Vec::new();
+        for peer in (0..team_size).filter(|&j| j != unit) {
+            let queue = FrameQueue::new(PEER_QUEUE_FRAMES, Arc::clone(&peer_ready));
+            subscribers.push(network::subscribe(session, keys.unit_state(peer), &queue).await?);
+            peers.push((peer, queue));
         }
+        let operator = FrameQueue::new(OPERATOR_QUEUE_FRAMES, Arc::new(Notify::new()));
+        subscribers.push(network::subscribe(session, keys.operator(), &operator).await?);
+        let state =
+            Outbox::spawn(network::control_publisher(session, keys.unit_state(unit)).await?);
+        let (sensed, commands) = if hal == HalKind::Sim {
+            let ready = Arc::new(Notify::new());
+            let queue = FrameQueue::new(SENSED_QUEUE_FRAMES, Arc::clone(&ready));
+            subscribers.push(network::subscribe(session, keys.sim_sensed(unit), &queue).await?);
+            let commands = network::control_publisher(session, keys.sim_command(unit)).await?;
+            (Some((queue, ready)), Some(Outbox::spawn(commands)))
+        } else {
+            (None, None)
+        };
+        Ok(Links {
+            peers,
+            peer_ready,
+            operator,
+            sensed,
+            state,
+            commands,
+            _subscribers: subscribers,
+        })
+    }
+
+    /// Every receive queue's counts, summed.
+    fn received(&self) -> QueueCounts {
+        let mut total = self.operator.counts();
+        for (_, q) in &self.peers {
+            total += q.counts();
+        }
+        if let Some((q, _)) = &self.sensed {
+            total += q.counts();
+        }
+        total
+    }
+
+    /// Lets the last frames go out (bounded), then stops publishing.
+    async fn close(self) {
+        if let Some(commands) = self.commands {
+            commands.close(LAST_COMMAND_WAIT).await;
+        }
+        self.state.close(LAST_COMMAND_WAIT).await;
     }
 }
 
-fn take(
-    sample: &zenoh::sample::Sample,
-    own_key: &str,
-    inbox: &mut Inbox,
-    onboard: &mut Onboard,
-    now_us: u64,
-) {
-    if sample.key_expr().as_str() == own_key {
-        return;
+/// How often the daemon's log reports refused frames while more keep coming.
+const REPORT_PERIOD: Duration = Duration::from_secs(1);
+
+/// The log's account of refused frames: the validator's rejections (with their reasons) and
+/// the queues' drops and oversize frames, when they grew, at most once per [`REPORT_PERIOD`];
+/// and the totals at the end.
+#[derive(Default)]
+struct Report {
+    rejected: u64,
+    refused: u64,
+    last: Option<Instant>,
+}
+
+impl Report {
+    fn tick(&mut self, unit: usize, validator: &Validator, links: &Links) {
+        let rejected = validator.counts().total();
+        let net = links.received();
+        if rejected == self.rejected && net.refused() == self.refused {
+            return;
+        }
+        if self.last.is_some_and(|t| t.elapsed() < REPORT_PERIOD) {
+            return;
+        }
+        self.last = Some(Instant::now());
+        self.rejected = rejected;
+        self.refused = net.refused();
+        warn!(
+            unit,
+            rejected,
+            counts = ?validator.counts(),
+            dropped = net.dropped,
+            oversize = net.oversize,
+            "frames refused"
+        );
     }
+
+    fn totals(&self, unit: usize, validator: &Validator, links: &Links) {
+        let net = links.received();
+        let state = links.state.counts();
+        info!(
+            unit,
+            received = net.received,
+            rejected = validator.counts().total(),
+            counts = ?validator.counts(),
+            dropped = net.dropped,
+            oversize = net.oversize,
+            published = state.sent,
+            superseded = state.superseded,
+            publish_failed = state.failed,
+            "network totals"
+        );
+    }
+}
+
+/// Validates and takes in every frame waiting in `queue` (none when `drop`: a drilled
+/// partition).
+fn drain(queue: &FrameQueue, inbox: &mut Inbox, onboard: &mut Onboard, now_us: u64, drop: bool) {
+    queue.drain(|sample| {
+        if !drop {
+            take(sample, inbox, onboard, now_us);
+        }
+    });
+}
+
+fn take(sample: &zenoh::sample::Sample, inbox: &mut Inbox, onboard: &mut Onboard, now_us: u64) {
+    // The queue refused anything over the frame cap, so this copy (if the payload is not
+    // contiguous) is bounded.
     let bytes = sample.payload().to_bytes();
     match inbox.validator.receive_frame(&bytes, now_us) {
         // Lockstep: a peer's message of this very tick waits for the next one, so what a unit
@@ -807,8 +892,7 @@ impl Inbox {
 /// the previous tick is in, taking them in as they come; a silent peer is then judged by the
 /// staleness rule on message stamps, like any other.
 async fn wait_for_peers(
-    sub: &Subscriber,
-    own_key: &str,
+    links: &Links,
     inbox: &mut Inbox,
     onboard: &mut Onboard,
     now_us: u64,
@@ -818,6 +902,9 @@ async fn wait_for_peers(
     // Long enough for a loaded machine to deliver a live peer's message (waiting costs nothing
     // then); a dead peer makes each of the few ticks before its staleness stop wait this long.
     const PEER_WAIT: Duration = Duration::from_secs(1);
+    if drop {
+        return;
+    }
     // A peer already stale (dead, or on a clock far off: a clock drill) has been judged by the
     // staleness rule; waiting for it would stretch every tick to PEER_WAIT.
     if !onboard.peers_heard_since(now_us.saturating_sub(team.staleness_us())) {
@@ -825,10 +912,18 @@ async fn wait_for_peers(
     }
     let wanted = now_us.saturating_sub(team.control_period_us);
     let deadline = tokio::time::Instant::now() + PEER_WAIT;
-    while !drop && !onboard.peers_heard_since(wanted) {
-        let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await else {
+    loop {
+        for (_, queue) in &links.peers {
+            queue.drain(|sample| take(sample, inbox, onboard, now_us));
+        }
+        if onboard.peers_heard_since(wanted) {
             return;
-        };
-        take(&sample, own_key, inbox, onboard, now_us);
+        }
+        if tokio::time::timeout_at(deadline, links.peer_ready.notified())
+            .await
+            .is_err()
+        {
+            return;
+        }
     }
 }
