@@ -10,7 +10,7 @@
 //!
 //! `tag = HMAC-SHA256(key of the envelope's sender, frame[0..7] ‖ JSON)`: the MAC covers the
 //! magic, the frame version and the key epoch as well as the envelope, so none of them can be
-//! changed without the tag failing. The receiver ([`crate::message::Validator::receive_frame`])
+//! changed without the tag failing. The receiver ([`crate::validator::Validator::receive_frame`])
 //! checks, in order: size, magic and frame version, key epoch, then reads only the `sender` (and
 //! `version`) from the JSON to pick the key, verifies the tag in constant time, and only then
 //! trusts anything in the envelope. Every protocol version keeps `sender` at the top level of
@@ -54,8 +54,8 @@ use hmac::{Hmac, Mac};
 use moonhaul_core::input::{self, InputError};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use sha2::Sha256;
-use std::fs::{self, OpenOptions};
-use std::io::{self, Write as _};
+use std::fs;
+use std::io;
 use std::path::{Path, PathBuf};
 
 type HmacSha256 = Hmac<Sha256>;
@@ -346,31 +346,17 @@ impl KeyFile {
         Ok(())
     }
 
-    /// Writes the key file whole (a temporary sibling created with mode 0600, synced, then
-    /// moved into place), so a reader never sees half a file and the secrets are never readable
-    /// by others, not even for a moment. Refuses to replace an existing file unless `force`,
-    /// and refuses a target that is not a regular file (a symlink is not followed).
+    /// Writes the key file whole and private through [`moonhaul_core::atomic_file::write_private`]
+    /// (a temporary sibling created with mode 0600, synced, then moved into place), so a reader
+    /// never sees half a file and the secrets are never readable by others, not even for a
+    /// moment. Refuses to replace an existing file unless `force` (also one that appears while
+    /// the file is written), and refuses a target that is not a regular file (a symlink is not
+    /// followed).
     pub fn write_new(&self, path: &Path, force: bool) -> Result<(), KeyFileError> {
         let write_error = |error| KeyFileError::Write {
             path: path.to_owned(),
             error,
         };
-        match fs::symlink_metadata(path) {
-            Ok(m) if !m.file_type().is_file() => {
-                return Err(write_error(io::Error::new(
-                    io::ErrorKind::InvalidInput,
-                    "it is not a regular file",
-                )))
-            }
-            Ok(_) if !force => {
-                return Err(KeyFileError::Exists {
-                    path: path.to_owned(),
-                })
-            }
-            Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-            Err(e) => return Err(write_error(e)),
-        }
         let body = toml::to_string(self).map_err(|e| write_error(io::Error::other(e)))?;
         let text = format!(
             "# moonhaul team key file: SECRET. Every holder can authenticate as any unit or as\n\
@@ -378,31 +364,15 @@ impl KeyFile {
              # generating a new file with a higher epoch and giving it to every unit.\n{body}",
             self.team
         );
-        let temp = Temporary::create(path).map_err(write_error)?;
-        temp.fill(text.as_bytes()).map_err(write_error)?;
-        if force {
-            fs::rename(&temp.path, path).map_err(write_error)?;
-        } else {
-            // A hard link never replaces an existing entry, so a file that appeared since the
-            // check above is kept; filesystems without hard links fall back to a rename.
-            match fs::hard_link(&temp.path, path) {
-                Ok(()) => {}
-                Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
-                    return Err(KeyFileError::Exists {
-                        path: path.to_owned(),
-                    })
-                }
-                Err(_) => {
-                    if fs::symlink_metadata(path).is_ok() {
-                        return Err(KeyFileError::Exists {
-                            path: path.to_owned(),
-                        });
-                    }
-                    fs::rename(&temp.path, path).map_err(write_error)?;
-                }
+        match moonhaul_core::atomic_file::write_private(path, text.as_bytes(), force) {
+            Ok(()) => {}
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                return Err(KeyFileError::Exists {
+                    path: path.to_owned(),
+                })
             }
+            Err(e) => return Err(write_error(e)),
         }
-        drop(temp);
         sync_parent(path);
         Ok(())
     }
@@ -501,58 +471,6 @@ fn check_private(path: &Path) -> Result<(), KeyFileError> {
     #[cfg(not(unix))]
     let _ = path;
     Ok(())
-}
-
-/// A hidden, private (0600) sibling of the target; removed on drop unless moved away.
-struct Temporary {
-    path: PathBuf,
-}
-
-impl Temporary {
-    fn create(target: &Path) -> io::Result<Self> {
-        let name = target.file_name().ok_or_else(|| {
-            io::Error::new(io::ErrorKind::InvalidInput, "the path has no file name")
-        })?;
-        let mut attempt = 0;
-        loop {
-            let path = target.with_file_name(format!(
-                ".tmp-{}-{attempt}-{}",
-                std::process::id(),
-                name.to_string_lossy()
-            ));
-            let mut options = OpenOptions::new();
-            options.write(true).create_new(true);
-            #[cfg(unix)]
-            {
-                use std::os::unix::fs::OpenOptionsExt as _;
-                options.mode(0o600);
-            }
-            match options.open(&path) {
-                Ok(_) => return Ok(Temporary { path }),
-                Err(e) if e.kind() == io::ErrorKind::AlreadyExists && attempt < 16 => attempt += 1,
-                Err(e) => return Err(e),
-            }
-        }
-    }
-
-    fn fill(&self, bytes: &[u8]) -> io::Result<()> {
-        let mut file = OpenOptions::new().write(true).open(&self.path)?;
-        #[cfg(unix)]
-        {
-            // Exactly 0600 whatever the umask (which could only have removed bits).
-            use std::os::unix::fs::PermissionsExt as _;
-            file.set_permissions(fs::Permissions::from_mode(0o600))?;
-        }
-        file.write_all(bytes)?;
-        file.sync_all()
-    }
-}
-
-impl Drop for Temporary {
-    fn drop(&mut self) {
-        // Best effort; after a rename it is gone already, after a hard link it is a second name.
-        let _ = fs::remove_file(&self.path);
-    }
 }
 
 /// Makes the new directory entry durable (best effort: not every platform can sync a folder).

@@ -8,8 +8,9 @@
 //!   target (eqs. stacked_state … stacked_metric) and names the subsystem that limits it;
 //! - [`pipeline`]: the one action pipeline (increment → F_k → clamp → U_k) and the hold rule,
 //!   called by training, evaluation and the onboard tick alike;
-//! - [`message`]: versioned peer messages and their validation (authentication, replay
-//!   protection);
+//! - [`message`]: versioned peer messages, what a receiver checks (authentication, replay
+//!   protection, physical bounds) and why;
+//! - [`validator`]: the receiving side that runs those checks on every frame;
 //! - [`auth`]: the authenticated wire frame (HMAC-SHA256) and the team key file;
 //! - [`model`]: the unit kinematics the clamp evaluates (arm FK on a differential-drive base);
 //! - [`config`]: `configs/sync.toml`, `configs/gate.toml` and the team settings a daemon
@@ -28,12 +29,14 @@ pub mod message;
 pub mod model;
 pub mod pipeline;
 pub mod team;
+pub mod validator;
 
 pub use auth::{KeyFile, Sealer};
 pub use clamp::{Clamp, ClampInput, ClampReport, HoldReason};
 pub use config::{GateConfig, SyncConfig, TeamError, TeamSettings};
 pub use gate::{Measurements, PhaseGate};
-pub use message::{Envelope, Validator};
+pub use message::Envelope;
 pub use model::UnitModel;
 pub use pipeline::{ActionPipeline, Increment, PipelineInput, PipelineReport};
 pub use team::{Decision, Directive, Team};
+pub use validator::Validator;

@@ -119,7 +119,7 @@ impl Team {
         self.phase
     }
 
-    /// Takes in one message that passed the [`crate::message::Validator`].
+    /// Takes in one message that passed the [`crate::validator::Validator`].
     pub fn receive(&mut self, message: &Envelope) {
         let peer = match message.sender {
             Sender::Unit(i) if i != self.settings.unit_index => self.peers.get_mut(i),

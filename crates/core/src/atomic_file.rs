@@ -56,6 +56,62 @@ pub fn write(path: &Path, bytes: &[u8]) -> io::Result<()> {
     write_with(path, |temp| fs::write(temp, bytes), |e| e)
 }
 
+/// Writes a secret (a key file) atomically under the rules of the [module docs](self), except
+/// for permissions: the file is private, exactly `0o600`, whatever the umask and whatever the
+/// file it replaces had, and never readable by others, not even for a moment (the temporary
+/// is created `0o600` and made exactly that before a byte is written). With `replace` false
+/// an existing target is kept and the write fails with [`io::ErrorKind::AlreadyExists`] —
+/// also when the target appears while the content is staged: the temporary is hard-linked
+/// into place, which never replaces an entry (a filesystem without hard links falls back to
+/// a rename after a last check). On unix only; elsewhere the permissions are the default.
+pub fn write_private(path: &Path, bytes: &[u8], replace: bool) -> io::Result<()> {
+    if !replace && check_target(path)?.is_some() {
+        return Err(exists(path));
+    }
+    let staged = Staged::new_with(
+        path,
+        |temp| {
+            let mut file = OpenOptions::new().write(true).open(temp)?;
+            set_private(&file)?;
+            io::Write::write_all(&mut file, bytes)
+        },
+        |e| e,
+        Permissions::Private,
+    )?;
+    if replace {
+        return staged.rename_in();
+    }
+    staged.link_in()
+}
+
+fn exists(path: &Path) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::AlreadyExists,
+        format!("{} exists", path.display()),
+    )
+}
+
+/// Exactly `0o600` (the umask could only have removed bits).
+fn set_private(file: &File) -> io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        file.set_permissions(fs::Permissions::from_mode(0o600))?;
+    }
+    #[cfg(not(unix))]
+    let _ = file;
+    Ok(())
+}
+
+/// The permissions a staged file gets.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Permissions {
+    /// Those of the file it replaces (a new one: the process's default).
+    KeepOld,
+    /// Exactly `0o600`, from the temporary's creation on.
+    Private,
+}
+
 /// Files that belong together (a CSV and its plot, two plots of one run), published so that a
 /// reader never sees a new member beside an old one.
 ///
@@ -159,11 +215,21 @@ impl Staged {
         write: impl FnOnce(&Path) -> Result<(), E>,
         io_error: impl Fn(io::Error) -> E,
     ) -> Result<Self, E> {
+        Self::new_with(target, write, io_error, Permissions::KeepOld)
+    }
+
+    fn new_with<E>(
+        target: &Path,
+        write: impl FnOnce(&Path) -> Result<(), E>,
+        io_error: impl Fn(io::Error) -> E,
+        permissions: Permissions,
+    ) -> Result<Self, E> {
         let old = check_target(target).map_err(&io_error)?;
+        let old = old.filter(|_| permissions == Permissions::KeepOld);
         remove_leftovers(target);
         let staged = Self {
             target: target.to_path_buf(),
-            temp: create_temporary(target).map_err(&io_error)?,
+            temp: create_temporary(target, permissions).map_err(&io_error)?,
             armed: true,
         };
         write(&staged.temp)?;
@@ -185,6 +251,22 @@ impl Staged {
         fs::rename(&self.temp, &self.target)?;
         self.armed = false;
         Ok(())
+    }
+
+    /// Links the temporary in as the target, never replacing an entry there
+    /// ([`io::ErrorKind::AlreadyExists`]); the temporary is removed either way.
+    fn link_in(self) -> io::Result<()> {
+        match fs::hard_link(&self.temp, &self.target) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => Err(exists(&self.target)),
+            // No hard links here: rename after a last check (a file appearing in between is
+            // the one race left on such filesystems).
+            Err(_) => match check_target(&self.target)? {
+                Some(_) => Err(exists(&self.target)),
+                None => self.rename_in(),
+            },
+        }
+        // Dropping `self` (still armed after a link) removes the temporary's second name.
     }
 }
 
@@ -256,7 +338,7 @@ fn kept_permissions(old: &fs::Metadata) -> fs::Permissions {
 
 /// Creates a new, empty temporary sibling of `path` (never opening an existing entry, so a
 /// planted symlink is not followed) and returns its path.
-fn create_temporary(path: &Path) -> io::Result<PathBuf> {
+fn create_temporary(path: &Path, permissions: Permissions) -> io::Result<PathBuf> {
     /// Distinguishes concurrent writers within one process.
     static NEXT: AtomicUsize = AtomicUsize::new(0);
     let name = file_name(path)?;
@@ -267,7 +349,16 @@ fn create_temporary(path: &Path) -> io::Result<PathBuf> {
             std::process::id(),
             NEXT.fetch_add(1, Ordering::Relaxed),
         ));
-        match OpenOptions::new().write(true).create_new(true).open(&temp) {
+        let mut options = OpenOptions::new();
+        options.write(true).create_new(true);
+        #[cfg(unix)]
+        if permissions == Permissions::Private {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.mode(0o600);
+        }
+        #[cfg(not(unix))]
+        let _ = permissions;
+        match options.open(&temp) {
             Ok(_) => return Ok(temp),
             // A leftover of an earlier process that had our pid: take the next number.
             Err(e) if e.kind() == io::ErrorKind::AlreadyExists && attempts < 16 => attempts += 1,
@@ -380,6 +471,29 @@ mod tests {
 
         let missing_dir = write(&dir.join("absent").join("x.csv"), b"x").unwrap_err();
         assert_eq!(missing_dir.kind(), io::ErrorKind::NotFound);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn private_writes_are_0600_and_replace_only_when_asked() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("team.keys.toml");
+        let mode = |p: &Path| fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        write_private(&target, b"secret 1", false).unwrap();
+        assert_eq!(mode(&target), 0o600);
+        let kept = write_private(&target, b"secret 2", false).unwrap_err();
+        assert_eq!(kept.kind(), io::ErrorKind::AlreadyExists, "{kept}");
+        assert_eq!(fs::read(&target).unwrap(), b"secret 1");
+        // A replaced file's looser mode is not kept: a secret stays private.
+        fs::set_permissions(&target, fs::Permissions::from_mode(0o644)).unwrap();
+        write_private(&target, b"secret 3", true).unwrap();
+        assert_eq!(fs::read(&target).unwrap(), b"secret 3");
+        assert_eq!(mode(&target), 0o600);
+        assert_eq!(entries(dir.path()), ["team.keys.toml"]);
+        let sub = dir.path().join("sub");
+        fs::create_dir(&sub).unwrap();
+        let refused = write_private(&sub, b"x", true).unwrap_err();
+        assert_refused(&refused, &sub, "a directory");
     }
 
     #[test]

@@ -1,0 +1,841 @@
+//! The receiving side of a unit: every frame from the network is authenticated
+//! ([`crate::auth`]), decoded and checked here before it can influence a unit. What the checks
+//! are, and why, is in [`crate::message`]'s docs (replay protection).
+
+use crate::auth::{Frame, KeyFile, KeyMismatch, Verifier};
+use crate::config::TeamSettings;
+use crate::message::{
+    Body, Envelope, OperatorCommand, RejectCounts, Rejection, Sender, MAX_SEQ_LEAD_US,
+    PROTOCOL_VERSION,
+};
+use serde::Deserialize;
+
+/// The receiving side of one unit: authenticates and checks every frame, counts and returns
+/// every rejection (the daemon logs it), and remembers each sender's last accepted sequence
+/// number.
+#[derive(Debug, Clone)]
+pub struct Validator {
+    team: String,
+    /// The unit this validator receives for (its own frames are refused); `None` for a monitor.
+    own_unit: Option<usize>,
+    verifier: Verifier,
+    /// One slot per unit, then the operator.
+    last_seq: Vec<Option<u64>>,
+    /// The stamp bound, µs; `None` for a monitor, whose clock need not be the team's.
+    staleness_us: Option<u64>,
+    counts: RejectCounts,
+}
+
+/// What is read of a frame's envelope before its tag is verified: only to pick the key (and,
+/// once verified, to name another protocol version as such rather than as garbage).
+#[derive(Deserialize)]
+struct Header {
+    version: u16,
+    sender: Sender,
+}
+
+impl Validator {
+    /// The validator of the unit `settings` describes, checking tags with `keys`, which must be
+    /// its team's.
+    pub fn new(settings: &TeamSettings, keys: &KeyFile) -> Result<Self, KeyMismatch> {
+        keys.check_matches(settings)?;
+        Ok(Validator {
+            team: settings.team.clone(),
+            own_unit: Some(settings.unit_index),
+            verifier: keys.verifier(),
+            last_seq: vec![None; settings.team_size + 1],
+            staleness_us: Some(settings.staleness_us()),
+            counts: RejectCounts::default(),
+        })
+    }
+
+    /// A validator for an observer that is not a unit (the operator console showing the
+    /// units' states): every unit's and the operator's frames of the key file's team are
+    /// authenticated and checked as usual, except that stamps are not bounded against the
+    /// receiver's clock (`now_us` is ignored), since an observer's clock need not be the
+    /// team's. Replays are still refused by sequence. Never use it to drive a unit.
+    pub fn monitor(keys: &KeyFile) -> Self {
+        Validator {
+            team: keys.team().to_owned(),
+            own_unit: None,
+            verifier: keys.verifier(),
+            last_seq: vec![None; keys.team_size() + 1],
+            staleness_us: None,
+            counts: RejectCounts::default(),
+        }
+    }
+
+    pub fn counts(&self) -> &RejectCounts {
+        &self.counts
+    }
+
+    /// Authenticates, decodes and validates one frame from the network at local time `now_us`
+    /// (order: size, magic and frame version, key epoch, sender, tag, then the envelope's
+    /// checks). Never panics.
+    pub fn receive_frame(&mut self, bytes: &[u8], now_us: u64) -> Result<Envelope, Rejection> {
+        let result = self.check_frame(bytes, now_us);
+        if let Err(rejection) = &result {
+            self.counts.record(rejection);
+        }
+        result
+    }
+
+    fn check_frame(&mut self, bytes: &[u8], now_us: u64) -> Result<Envelope, Rejection> {
+        let malformed = |detail: String| Rejection::Malformed {
+            len: bytes.len(),
+            detail,
+        };
+        let frame = Frame::parse(bytes)?;
+        let expected = self.verifier.epoch();
+        if frame.epoch != expected {
+            return Err(Rejection::StaleKey {
+                got: frame.epoch,
+                expected,
+            });
+        }
+        let header: Header =
+            serde_json::from_slice(frame.json).map_err(|e| malformed(e.to_string()))?;
+        let sender = header.sender;
+        let slot = self.slot(sender)?;
+        if !self.verifier.verify(sender, &frame) {
+            return Err(Rejection::BadMac { sender });
+        }
+        if header.version != PROTOCOL_VERSION {
+            return Err(Rejection::WrongVersion {
+                got: header.version,
+            });
+        }
+        let envelope: Envelope =
+            serde_json::from_slice(frame.json).map_err(|e| malformed(e.to_string()))?;
+        if envelope.sender != sender {
+            return Err(malformed("sender read twice differently".to_owned()));
+        }
+        self.validate(envelope, slot, now_us)
+    }
+
+    /// The sequence slot of a sender this unit accepts messages from.
+    fn slot(&self, sender: Sender) -> Result<usize, Rejection> {
+        let units = self.last_seq.len() - 1;
+        match sender {
+            Sender::Unit(i) if i < units && Some(i) != self.own_unit => Ok(i),
+            Sender::Unit(_) => Err(Rejection::UnknownSender { sender }),
+            Sender::Operator => Ok(units),
+        }
+    }
+
+    /// The checks of an authenticated envelope.
+    fn validate(&mut self, e: Envelope, slot: usize, now_us: u64) -> Result<Envelope, Rejection> {
+        let (sender, seq) = (e.sender, e.seq);
+        if e.version != PROTOCOL_VERSION {
+            return Err(Rejection::WrongVersion { got: e.version });
+        }
+        if e.team != self.team {
+            return Err(Rejection::WrongTeam {
+                sender,
+                got: e.team,
+            });
+        }
+        if matches!(sender, Sender::Operator) != matches!(e.body, Body::Operator(_)) {
+            return Err(Rejection::WrongSender {
+                sender,
+                body: e.body.kind(),
+            });
+        }
+        if let Some(field) = e.body.non_finite_field() {
+            return Err(Rejection::NonFinite { sender, seq, field });
+        }
+        match self.check_fresh(&e, slot, now_us) {
+            Ok(()) => {
+                self.last_seq[slot] = Some(seq);
+                Ok(e)
+            }
+            // Stopping is always safe: a stop is never lost to a clock or sequence problem.
+            Err(_) if e.body == Body::Operator(OperatorCommand::Stop) => Ok(e),
+            Err(rejection) => Err(rejection),
+        }
+    }
+
+    /// Replay protection (see [`crate::message`#replay-protection](crate::message#replay-protection)).
+    fn check_fresh(&self, e: &Envelope, slot: usize, now_us: u64) -> Result<(), Rejection> {
+        let (sender, seq) = (e.sender, e.seq);
+        if let Some(bound_us) = self.staleness_us {
+            if now_us > e.stamp_us.saturating_add(bound_us) {
+                return Err(Rejection::Stale {
+                    sender,
+                    seq,
+                    age_us: now_us - e.stamp_us,
+                    bound_us,
+                });
+            }
+            if e.stamp_us > now_us.saturating_add(bound_us) {
+                return Err(Rejection::FromFuture {
+                    sender,
+                    seq,
+                    ahead_us: e.stamp_us - now_us,
+                    bound_us,
+                });
+            }
+        }
+        if seq > e.stamp_us.saturating_add(MAX_SEQ_LEAD_US) {
+            return Err(Rejection::SeqAhead {
+                sender,
+                seq,
+                stamp_us: e.stamp_us,
+                lead_us: MAX_SEQ_LEAD_US,
+            });
+        }
+        match self.last_seq[slot] {
+            Some(last) if seq == last => Err(Rejection::Duplicate { sender, seq }),
+            Some(last) if seq < last => Err(Rejection::Reordered { sender, seq, last }),
+            _ => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::auth::{Sealer, FRAME_HEADER_BYTES, MAX_FRAME_BYTES};
+    use crate::gate::Measurements;
+    use crate::message::*;
+    use crate::team::Team;
+    use crate::GateConfig;
+    use moonhaul_core::state::{Phase, UnitCommand, UnitState};
+    use proptest::prelude::*;
+
+    const PERIOD_US: u64 = 20_000;
+    const NOW: u64 = 10_000_000;
+    const BOUND: u64 = 3 * PERIOD_US;
+
+    fn settings() -> TeamSettings {
+        TeamSettings {
+            team: "moonhaul".into(),
+            team_size: 3,
+            unit_index: 0,
+            control_period_us: PERIOD_US,
+            peer_staleness_periods: 3,
+        }
+    }
+
+    /// The team's keys, a validator for unit 0 and a sealer per sender.
+    struct Fixture {
+        keys: KeyFile,
+        v: Validator,
+    }
+
+    impl Fixture {
+        fn new() -> Self {
+            let keys = KeyFile::generate("moonhaul", 3, 1).unwrap();
+            let v = Validator::new(&settings(), &keys).unwrap();
+            Fixture { keys, v }
+        }
+
+        fn sealer(&self, sender: Sender) -> Sealer {
+            self.keys.sealer(sender).unwrap()
+        }
+
+        fn seal(&self, e: &Envelope) -> Vec<u8> {
+            self.sealer(e.sender).seal(e).unwrap()
+        }
+
+        fn receive(&mut self, e: &Envelope, now_us: u64) -> Result<Envelope, Rejection> {
+            let frame = self.seal(e);
+            self.v.receive_frame(&frame, now_us)
+        }
+    }
+
+    fn report() -> UnitTick {
+        UnitTick {
+            phase: Phase::Lift,
+            state: UnitState::default(),
+            command: UnitCommand::default(),
+            announce: Announcements::default(),
+        }
+    }
+
+    fn msg(sender: Sender, seq: u64, stamp_us: u64, body: Body) -> Envelope {
+        Envelope {
+            version: PROTOCOL_VERSION,
+            team: "moonhaul".into(),
+            sender,
+            seq,
+            stamp_us,
+            body,
+        }
+    }
+
+    fn state(unit: usize, seq: u64, stamp_us: u64) -> Envelope {
+        msg(Sender::Unit(unit), seq, stamp_us, Body::Unit(report()))
+    }
+
+    fn operator(seq: u64, stamp_us: u64, command: OperatorCommand) -> Envelope {
+        msg(Sender::Operator, seq, stamp_us, Body::Operator(command))
+    }
+
+    #[test]
+    fn every_body_round_trips_through_frames() {
+        let mut f = Fixture::new();
+        let t = Transition {
+            mission: 7,
+            from: Phase::Lift,
+            to: Phase::Transport,
+        };
+        let announcing = UnitTick {
+            announce: Announcements {
+                propose: Some(t),
+                ack: Some(Transition {
+                    from: Phase::Idle,
+                    to: Phase::Lift,
+                    ..t
+                }),
+                safety_stop: Some(StopReason::Fault(FaultKind::Drive)),
+            },
+            ..report()
+        };
+        let bodies = [
+            (Sender::Unit(1), Body::Unit(report())),
+            (Sender::Unit(2), Body::Unit(announcing)),
+            (
+                Sender::Operator,
+                Body::Operator(OperatorCommand::Start { mission: 7 }),
+            ),
+            (Sender::Operator, Body::Operator(OperatorCommand::Stop)),
+        ];
+        let mut buffer = Vec::new();
+        for (seq, (sender, body)) in bodies.into_iter().enumerate() {
+            let e = msg(sender, seq as u64, NOW, body);
+            f.sealer(sender).seal_into(&e, &mut buffer).unwrap();
+            assert!(buffer.len() < 1024, "{} bytes", buffer.len());
+            assert_eq!(f.v.receive_frame(&buffer, NOW).unwrap(), e);
+        }
+        assert_eq!(f.v.counts().total(), 0);
+    }
+
+    /// One case per rejection reason; each is counted in its own counter.
+    #[test]
+    fn each_rejection_reason_is_detected_and_counted() {
+        let mut f = Fixture::new();
+        let now = NOW;
+        let bound = BOUND;
+        let mut nan = report();
+        nan.state.arm.position_rad[3] = f64::NAN;
+        let mut inf = report();
+        inf.command.wheel_velocity_radps[1] = f64::INFINITY;
+        let cases: Vec<(Envelope, Rejection)> = vec![
+            (
+                Envelope {
+                    version: 2,
+                    ..state(1, 1, now)
+                },
+                Rejection::WrongVersion { got: 2 },
+            ),
+            (
+                Envelope {
+                    team: "other".into(),
+                    ..state(1, 1, now)
+                },
+                Rejection::WrongTeam {
+                    sender: Sender::Unit(1),
+                    got: "other".into(),
+                },
+            ),
+            (
+                state(0, 1, now),
+                Rejection::UnknownSender {
+                    sender: Sender::Unit(0),
+                },
+            ),
+            (
+                msg(
+                    Sender::Unit(1),
+                    1,
+                    now,
+                    Body::Operator(OperatorCommand::Stop),
+                ),
+                Rejection::WrongSender {
+                    sender: Sender::Unit(1),
+                    body: "operator",
+                },
+            ),
+            (
+                msg(Sender::Operator, 1, now, Body::Unit(report())),
+                Rejection::WrongSender {
+                    sender: Sender::Operator,
+                    body: "unit",
+                },
+            ),
+            (
+                msg(Sender::Unit(1), 1, now, Body::Unit(nan)),
+                Rejection::NonFinite {
+                    sender: Sender::Unit(1),
+                    seq: 1,
+                    field: "state.arm.position_rad",
+                },
+            ),
+            (
+                msg(Sender::Unit(1), 1, now, Body::Unit(inf)),
+                Rejection::NonFinite {
+                    sender: Sender::Unit(1),
+                    seq: 1,
+                    field: "command.wheel_velocity_radps",
+                },
+            ),
+            (
+                state(1, 1, now - bound - 1),
+                Rejection::Stale {
+                    sender: Sender::Unit(1),
+                    seq: 1,
+                    age_us: bound + 1,
+                    bound_us: bound,
+                },
+            ),
+            (
+                state(1, 1, now + bound + 1),
+                Rejection::FromFuture {
+                    sender: Sender::Unit(1),
+                    seq: 1,
+                    ahead_us: bound + 1,
+                    bound_us: bound,
+                },
+            ),
+            (
+                state(1, now + MAX_SEQ_LEAD_US + 1, now),
+                Rejection::SeqAhead {
+                    sender: Sender::Unit(1),
+                    seq: now + MAX_SEQ_LEAD_US + 1,
+                    stamp_us: now,
+                    lead_us: MAX_SEQ_LEAD_US,
+                },
+            ),
+        ];
+        for (i, (e, expected)) in cases.into_iter().enumerate() {
+            let got = if matches!(expected, Rejection::NonFinite { .. }) {
+                // JSON cannot carry NaN or infinity (serde_json writes null, which decoding
+                // refuses as malformed), so the check behind the tag is exercised directly.
+                let got = f.v.validate(e, 1, now);
+                if let Err(r) = &got {
+                    f.v.counts.record(r);
+                }
+                got
+            } else {
+                f.receive(&e, now)
+            };
+            assert_eq!(got, Err(expected.clone()));
+            assert_eq!(f.v.counts().total(), i as u64 + 1, "{expected}");
+        }
+        // A unit outside the team has no key: rejected before any tag check.
+        let outsider = serde_json::to_vec(&state(3, 1, now)).unwrap();
+        let frame = f.sealer(Sender::Unit(1)).seal_raw(&outsider);
+        assert_eq!(
+            f.v.receive_frame(&frame, now),
+            Err(Rejection::UnknownSender {
+                sender: Sender::Unit(3)
+            })
+        );
+        // Exactly at the staleness bound is still fresh; then sequence checks.
+        assert!(f.receive(&state(1, 5, now - bound), now).is_ok());
+        assert_eq!(
+            f.receive(&state(1, 5, now), now),
+            Err(Rejection::Duplicate {
+                sender: Sender::Unit(1),
+                seq: 5
+            })
+        );
+        assert_eq!(
+            f.receive(&state(1, 4, now), now),
+            Err(Rejection::Reordered {
+                sender: Sender::Unit(1),
+                seq: 4,
+                last: 5
+            })
+        );
+        // Sequence numbers are per sender: unit 2 may use 4; the lead is inclusive.
+        assert!(f.receive(&state(2, 4, now), now).is_ok());
+        assert!(f
+            .receive(&state(2, now + MAX_SEQ_LEAD_US, now), now)
+            .is_ok());
+        // Frame-level reasons: malformed, oversize, another epoch, a bad tag.
+        let unit1 = f.sealer(Sender::Unit(1));
+        let truncated = unit1.seal_raw(b"{\"version\":1,\"team\":");
+        let malformed = f.v.receive_frame(&truncated, now).unwrap_err();
+        assert!(
+            matches!(malformed, Rejection::Malformed { len, .. } if len == FRAME_HEADER_BYTES + 20),
+            "{malformed}"
+        );
+        let big = vec![b' '; MAX_FRAME_BYTES + 1];
+        assert!(matches!(
+            f.v.receive_frame(&big, now),
+            Err(Rejection::Malformed { .. })
+        ));
+        for short in [&b""[..], b"MH", b"{\"version\":1}"] {
+            assert!(matches!(
+                f.v.receive_frame(short, now),
+                Err(Rejection::Malformed { .. })
+            ));
+        }
+        let future_format = br#"{"version":9,"sender":{"unit":1},"whatever":{"new":"layout"}}"#;
+        assert_eq!(
+            f.v.receive_frame(&unit1.seal_raw(future_format), now),
+            Err(Rejection::WrongVersion { got: 9 })
+        );
+        let mut extra = serde_json::to_value(state(1, 9, now)).unwrap();
+        extra["priority"] = 1.into();
+        let extra = serde_json::to_vec(&extra).unwrap();
+        assert!(matches!(
+            f.v.receive_frame(&unit1.seal_raw(&extra), now),
+            Err(Rejection::Malformed { .. })
+        ));
+        let old_keys = KeyFile::generate("moonhaul", 3, 0).unwrap();
+        let old = old_keys.sealer(Sender::Unit(1)).unwrap();
+        assert_eq!(
+            f.v.receive_frame(&old.seal(&state(1, 10, now)).unwrap(), now),
+            Err(Rejection::StaleKey {
+                got: 0,
+                expected: 1
+            })
+        );
+        let mut flipped = unit1.seal(&state(1, 10, now)).unwrap();
+        flipped[FRAME_HEADER_BYTES + 3] ^= 1;
+        assert!(matches!(
+            f.v.receive_frame(&flipped, now),
+            Err(Rejection::BadMac { .. } | Rejection::Malformed { .. })
+        ));
+        let mut tag = unit1.seal(&state(1, 10, now)).unwrap();
+        tag[10] ^= 0x80;
+        assert_eq!(
+            f.v.receive_frame(&tag, now),
+            Err(Rejection::BadMac {
+                sender: Sender::Unit(1)
+            })
+        );
+        let c = *f.v.counts();
+        // The flipped JSON byte reads as garbage or fails the tag; every other count is exact.
+        assert_eq!(c.malformed + c.bad_mac, 6 + 2);
+        let expected = RejectCounts {
+            malformed: c.malformed,
+            stale_key: 1,
+            bad_mac: c.bad_mac,
+            wrong_version: 2,
+            wrong_team: 1,
+            unknown_sender: 2,
+            wrong_sender: 2,
+            non_finite: 2,
+            stale: 1,
+            from_future: 1,
+            duplicate: 1,
+            reordered: 1,
+            seq_ahead: 1,
+        };
+        assert_eq!(c, expected);
+        // Rejection messages name the sender for the log.
+        let text = Rejection::Reordered {
+            sender: Sender::Unit(2),
+            seq: 4,
+            last: 5,
+        }
+        .to_string();
+        assert!(text.contains("unit 2") && text.contains("#4"), "{text}");
+    }
+
+    #[test]
+    fn a_forged_huge_sequence_number_never_blocks_the_real_sender() {
+        let mut f = Fixture::new();
+        // Same team and epoch, but not the team's keys.
+        let attacker = KeyFile::generate("moonhaul", 3, 1).unwrap();
+        let forged = attacker
+            .sealer(Sender::Unit(1))
+            .unwrap()
+            .seal(&state(1, u64::MAX, NOW))
+            .unwrap();
+        assert_eq!(
+            f.v.receive_frame(&forged, NOW),
+            Err(Rejection::BadMac {
+                sender: Sender::Unit(1)
+            })
+        );
+        assert!(f.receive(&state(1, NOW - 5, NOW), NOW).is_ok());
+        // A keyed but buggy sender's huge number is refused and not remembered either.
+        assert!(matches!(
+            f.receive(&state(1, u64::MAX, NOW), NOW),
+            Err(Rejection::SeqAhead { .. })
+        ));
+        assert!(f.receive(&state(1, NOW - 4, NOW + 1), NOW + 1).is_ok());
+        // A sender that rebooted numbers from its new boot time, above what it used: accepted.
+        let later = NOW + 3_000_000;
+        assert!(f.receive(&state(1, later - 100, later), later).is_ok());
+        assert_eq!(f.v.counts().total(), 2);
+    }
+
+    #[test]
+    fn a_forged_start_for_the_last_mission_never_blocks_real_starts() {
+        let keys = KeyFile::generate("moonhaul", 1, 1).unwrap();
+        let solo = TeamSettings {
+            team_size: 1,
+            ..settings()
+        };
+        let mut v = Validator::new(&solo, &keys).unwrap();
+        let mut team = Team::new(solo, &GateConfig::shipped().unwrap()).unwrap();
+        let attacker = KeyFile::generate("moonhaul", 1, 1).unwrap();
+        let forged = attacker
+            .sealer(Sender::Operator)
+            .unwrap()
+            .seal(&operator(
+                u64::MAX,
+                NOW,
+                OperatorCommand::Start { mission: u32::MAX },
+            ))
+            .unwrap();
+        let rejected = v.receive_frame(&forged, NOW);
+        assert_eq!(
+            rejected,
+            Err(Rejection::BadMac {
+                sender: Sender::Operator
+            })
+        );
+        let real = keys
+            .sealer(Sender::Operator)
+            .unwrap()
+            .seal(&operator(NOW, NOW, OperatorCommand::Start { mission: 1 }))
+            .unwrap();
+        team.receive(&v.receive_frame(&real, NOW).unwrap());
+        let forces = [30.0];
+        let measured = Measurements {
+            payload_height_m: 0.0,
+            goal_distance_m: 2.0,
+            grasp_force_n: &forces,
+        };
+        let decision = team.tick(NOW, &measured, None);
+        assert_eq!(decision.phase, Phase::Lift, "{decision:?}");
+    }
+
+    #[test]
+    fn a_forged_ack_is_rejected() {
+        let mut f = Fixture::new();
+        let attacker = KeyFile::generate("moonhaul", 3, 1).unwrap();
+        let mut acking = report();
+        acking.announce.ack = Some(Transition {
+            mission: 1,
+            from: Phase::Idle,
+            to: Phase::Lift,
+        });
+        let e = msg(Sender::Unit(2), NOW, NOW, Body::Unit(acking));
+        let forged = attacker.sealer(Sender::Unit(2)).unwrap().seal(&e).unwrap();
+        assert_eq!(
+            f.v.receive_frame(&forged, NOW),
+            Err(Rejection::BadMac {
+                sender: Sender::Unit(2)
+            })
+        );
+        // Nor may one sender's key speak for another.
+        let other_unit = f.sealer(Sender::Unit(1));
+        let relabelled = other_unit.seal_raw(&encode(&e).unwrap());
+        assert_eq!(
+            f.v.receive_frame(&relabelled, NOW),
+            Err(Rejection::BadMac {
+                sender: Sender::Unit(2)
+            })
+        );
+        assert_eq!(f.v.counts().bad_mac, 2);
+    }
+
+    #[test]
+    fn replays_stale_frames_and_other_teams_are_rejected() {
+        let mut f = Fixture::new();
+        let frame = f.seal(&state(1, NOW, NOW));
+        assert!(f.v.receive_frame(&frame, NOW).is_ok());
+        assert_eq!(
+            f.v.receive_frame(&frame, NOW + 1),
+            Err(Rejection::Duplicate {
+                sender: Sender::Unit(1),
+                seq: NOW
+            })
+        );
+        // Recorded, replayed after the bound to a unit that never heard it: stale.
+        let mut fresh = Validator::new(&settings(), &f.keys).unwrap();
+        assert!(matches!(
+            fresh.receive_frame(&frame, NOW + BOUND + 1),
+            Err(Rejection::Stale { .. })
+        ));
+        // Another team, with its own keys: the tag fails before the name is even read.
+        let other = KeyFile::generate("other", 3, 1).unwrap();
+        let theirs = Envelope {
+            team: "other".into(),
+            ..state(1, NOW + 1, NOW)
+        };
+        let frame = other
+            .sealer(Sender::Unit(1))
+            .unwrap()
+            .seal(&theirs)
+            .unwrap();
+        assert_eq!(
+            f.v.receive_frame(&frame, NOW),
+            Err(Rejection::BadMac {
+                sender: Sender::Unit(1)
+            })
+        );
+        // Our previous keys: refused by epoch.
+        let previous = KeyFile::generate("moonhaul", 3, 0).unwrap();
+        let frame = previous
+            .sealer(Sender::Unit(2))
+            .unwrap()
+            .seal(&state(2, NOW, NOW))
+            .unwrap();
+        assert_eq!(
+            f.v.receive_frame(&frame, NOW),
+            Err(Rejection::StaleKey {
+                got: 0,
+                expected: 1
+            })
+        );
+        // A key file of another team or size does not make a validator.
+        let settings = settings();
+        assert!(matches!(
+            Validator::new(&settings, &other),
+            Err(KeyMismatch::Team { .. })
+        ));
+        let small = KeyFile::generate("moonhaul", 2, 1).unwrap();
+        assert!(matches!(
+            Validator::new(&settings, &small),
+            Err(KeyMismatch::TeamSize { .. })
+        ));
+    }
+
+    #[test]
+    fn an_authentic_operator_stop_always_wins() {
+        let mut f = Fixture::new();
+        let start = operator(NOW, NOW, OperatorCommand::Start { mission: 1 });
+        assert!(f.receive(&start, NOW).is_ok());
+        let stop = f.seal(&operator(NOW + 1, NOW, OperatorCommand::Stop));
+        assert!(f.v.receive_frame(&stop, NOW).is_ok());
+        // Replayed, stale, from the future, numbered below the last: still a stop.
+        assert!(f.v.receive_frame(&stop, NOW).is_ok());
+        assert!(f.v.receive_frame(&stop, NOW + 60 * BOUND).is_ok());
+        let ahead = operator(NOW, NOW + 10 * BOUND, OperatorCommand::Stop);
+        assert!(f.receive(&ahead, NOW).is_ok());
+        let low = operator(3, NOW, OperatorCommand::Stop);
+        assert!(f.receive(&low, NOW).is_ok());
+        assert_eq!(f.v.counts().total(), 0);
+        // Those out-of-sequence stops did not move the sequence: the next start is accepted.
+        let restart = operator(NOW + 2, NOW, OperatorCommand::Start { mission: 2 });
+        assert!(f.receive(&restart, NOW).is_ok());
+        // But a stop still needs the right key, team and epoch.
+        let attacker = KeyFile::generate("moonhaul", 3, 1).unwrap();
+        let stop_e = operator(NOW + 3, NOW, OperatorCommand::Stop);
+        let forged = attacker
+            .sealer(Sender::Operator)
+            .unwrap()
+            .seal(&stop_e)
+            .unwrap();
+        assert!(matches!(
+            f.v.receive_frame(&forged, NOW),
+            Err(Rejection::BadMac { .. })
+        ));
+        let foreign = Envelope {
+            team: "other".into(),
+            ..stop_e.clone()
+        };
+        assert!(matches!(
+            f.receive(&foreign, NOW),
+            Err(Rejection::WrongTeam { .. })
+        ));
+        let previous = KeyFile::generate("moonhaul", 3, 0).unwrap();
+        let old = previous
+            .sealer(Sender::Operator)
+            .unwrap()
+            .seal(&stop_e)
+            .unwrap();
+        assert!(matches!(
+            f.v.receive_frame(&old, NOW),
+            Err(Rejection::StaleKey { .. })
+        ));
+        // And a stale start is not a stop.
+        let stale_start = operator(
+            NOW + 4,
+            NOW - BOUND - 1,
+            OperatorCommand::Start { mission: 3 },
+        );
+        assert!(matches!(
+            f.receive(&stale_start, NOW),
+            Err(Rejection::Stale { .. })
+        ));
+    }
+
+    #[test]
+    fn a_monitor_hears_every_unit_whatever_its_clock() {
+        let f = Fixture::new();
+        let mut monitor = Validator::monitor(&f.keys);
+        for unit in 0..3 {
+            let frame = f.seal(&state(unit, NOW, NOW));
+            assert!(monitor.receive_frame(&frame, 0).is_ok(), "unit {unit}");
+            assert!(matches!(
+                monitor.receive_frame(&frame, 0),
+                Err(Rejection::Duplicate { .. })
+            ));
+        }
+        let attacker = KeyFile::generate("moonhaul", 3, 1).unwrap();
+        let forged = attacker.sealer(Sender::Unit(1)).unwrap();
+        assert!(matches!(
+            monitor.receive_frame(&forged.seal(&state(1, NOW + 1, NOW)).unwrap(), 0),
+            Err(Rejection::BadMac { .. })
+        ));
+        let outsider = encode(&state(3, NOW, NOW)).unwrap();
+        let frame = f.sealer(Sender::Unit(1)).seal_raw(&outsider);
+        assert!(matches!(
+            monitor.receive_frame(&frame, 0),
+            Err(Rejection::UnknownSender { .. })
+        ));
+    }
+
+    #[test]
+    fn non_finite_messages_are_refused_at_the_sender() {
+        let mut r = report();
+        r.state.base_pose.yaw_rad = f64::NAN;
+        let e = msg(Sender::Unit(1), 3, 0, Body::Unit(r));
+        let expected = EncodeError::NonFinite {
+            sender: Sender::Unit(1),
+            seq: 3,
+            field: "state.base_pose",
+        };
+        assert_eq!(encode(&e).unwrap_err(), expected);
+        let keys = KeyFile::generate("moonhaul", 3, 1).unwrap();
+        let mut frame = vec![1, 2, 3];
+        let sealer = keys.sealer(Sender::Unit(1)).unwrap();
+        assert_eq!(sealer.seal_into(&e, &mut frame).unwrap_err(), expected);
+        assert!(frame.is_empty());
+    }
+
+    proptest! {
+        /// Whatever arrives, decoding returns and counts a rejection instead of panicking.
+        #[test]
+        fn arbitrary_bytes_never_panic(
+            bytes in prop::collection::vec(any::<u8>(), 0..600),
+            framed in any::<bool>(),
+        ) {
+            let mut f = Fixture::new();
+            let mut frame = if framed { b"MH\x01\x00\x00\x00\x01".to_vec() } else { Vec::new() };
+            frame.extend_from_slice(&bytes);
+            prop_assert!(f.v.receive_frame(&frame, NOW).is_err());
+            prop_assert_eq!(f.v.counts().total(), 1);
+        }
+
+        /// Flipping any bit of a valid frame never panics and never gets it accepted.
+        #[test]
+        fn corrupted_frames_never_panic_and_are_rejected(
+            index in any::<prop::sample::Index>(),
+            bit in 0..8u8,
+            operator_frame in any::<bool>(),
+        ) {
+            let mut f = Fixture::new();
+            let e = if operator_frame {
+                operator(NOW, NOW, OperatorCommand::Stop)
+            } else {
+                state(1, NOW, NOW)
+            };
+            let mut frame = f.seal(&e);
+            let i = index.index(frame.len());
+            frame[i] ^= 1 << bit;
+            prop_assert!(f.v.receive_frame(&frame, NOW).is_err());
+            prop_assert_eq!(f.v.counts().total(), 1);
+        }
+    }
+}
