@@ -117,9 +117,13 @@ fn frames() {
         peer_staleness_periods: 3,
     };
     let keys = KeyFile::generate("moonhaul", 2, 1);
+    let Ok(bounds) = moonhaul_coord::message::MessageBounds::shipped() else {
+        eprintln!("cannot read the shipped unit model for the frame bench");
+        std::process::exit(1);
+    };
     let (sealer, mut validator) = match keys.map(|keys| {
         let sealer = keys.sealer(Sender::Unit(1));
-        (sealer, Validator::new(&settings, &keys))
+        (sealer, Validator::new(&settings, &keys, bounds))
     }) {
         Ok((Ok(sealer), Ok(validator))) => (sealer, validator),
         _ => {

@@ -692,7 +692,7 @@ mod tests {
             sender: Sender::Operator,
             seq,
             stamp_us: 1_000_000,
-            body: Body::Operator(OperatorCommand::Stop),
+            body: Body::Operator(OperatorCommand::Stop { mission: None }),
         }
     }
 

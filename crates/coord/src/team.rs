@@ -13,7 +13,13 @@
 //!   window, or a peer reporting a phase the barrier cannot explain — sends the unit to Idle at
 //!   once, without a barrier. Stops a unit detects itself are announced every tick they last.
 //! - Idle is left only on an operator start for a mission newer than any seen before; it is
-//!   one-shot, so a stopped team never resumes on its own.
+//!   one-shot, so a stopped team never resumes on its own. A peer whose authenticated messages
+//!   are refused (out of physical bounds) stops the team like a silent one, named as that
+//!   peer's fault ([`StopReason::PeerRejected`]); once its messages are good again, the next
+//!   start runs.
+//! - Every operator command is answered ([`OperatorAck`], in every outgoing message): a start
+//!   is accepted when it starts the team (or names the mission already running: a resend),
+//!   refused when the team is in another mission, the mission is not newer, or a stop holds.
 //!
 //! Consequences the tests check: no two units ever run different phase policies in the same
 //! tick (a unit runs a new phase only after all units proposed it, and a proposer holds until it
@@ -24,7 +30,8 @@ use crate::clamp::HoldReason;
 use crate::config::{AgreementConfig, TeamError, TeamSettings};
 use crate::gate::{next_phase, Measurements, PhaseEvents, PhaseGate};
 use crate::message::{
-    Announcements, Body, Envelope, FaultKind, OperatorCommand, Sender, StopReason, Transition,
+    Announcements, Body, Envelope, FaultKind, OperatorAck, OperatorCommand, Refusal, Sender,
+    StopReason, Transition, Verdict,
 };
 use crate::GateConfig;
 use moonhaul_core::state::Phase;
@@ -69,6 +76,8 @@ struct PeerView {
     ack: Option<Transition>,
     /// A safety stop it announced since the last tick.
     stop: bool,
+    /// Its latest authenticated message was refused (and none accepted since).
+    rejected: bool,
 }
 
 /// One unit's side of the agreement; create once, feed validated messages with
@@ -83,8 +92,10 @@ pub struct Team {
     phase: Phase,
     /// The mission of the latest accepted start.
     mission: Option<u32>,
-    /// The mission of a new start received since the last tick.
-    start: Option<u32>,
+    /// The mission and sequence number of a start received since the last tick.
+    start: Option<(u32, u64)>,
+    /// The answer to the latest operator command, repeated in every message.
+    operator_ack: Option<OperatorAck>,
     operator_stop: bool,
     peers: Vec<PeerView>,
     /// This unit's own outstanding proposal.
@@ -107,6 +118,7 @@ impl Team {
             phase: Phase::Idle,
             mission: None,
             start: None,
+            operator_ack: None,
             operator_stop: false,
             proposal: None,
             pending_since: None,
@@ -117,6 +129,31 @@ impl Team {
     /// The committed phase.
     pub fn phase(&self) -> Phase {
         self.phase
+    }
+
+    /// The mission of the latest start this unit accepted.
+    pub fn mission(&self) -> Option<u32> {
+        self.mission
+    }
+
+    /// Notes that an authenticated message of peer `unit` was refused (out of physical bounds):
+    /// until one of its messages is accepted again, its staleness is its fault
+    /// ([`StopReason::PeerRejected`]).
+    pub fn peer_rejected(&mut self, unit: usize) {
+        if unit != self.settings.unit_index {
+            if let Some(peer) = self.peers.get_mut(unit) {
+                peer.rejected = true;
+            }
+        }
+    }
+
+    /// Notes that a frame claiming to be an operator command was refused before it reached the
+    /// team, to answer it in the next messages.
+    pub fn operator_refused(&mut self, seq: Option<u64>, refusal: Refusal) {
+        self.operator_ack = Some(OperatorAck {
+            seq,
+            verdict: Verdict::Rejected(refusal),
+        });
     }
 
     /// Takes in one message that passed the [`crate::validator::Validator`].
@@ -134,16 +171,22 @@ impl Team {
                 // Announcements repeat while they hold, so the latest message is the peer's
                 // current word; a stop counts for the tick it arrives in.
                 let a = &tick.announce;
+                peer.rejected = false;
                 peer.proposal = a.propose;
                 peer.ack = a.ack;
                 peer.stop |= a.safety_stop.is_some();
             }
-            (Body::Operator(OperatorCommand::Start { mission }), _)
-                if self.mission.is_none_or(|m| *mission > m) =>
-            {
-                self.start = Some(*mission);
+            (Body::Operator(OperatorCommand::Start { mission }), _) => {
+                self.start = Some((*mission, message.seq));
             }
-            (Body::Operator(OperatorCommand::Stop), _) => self.operator_stop = true,
+            (Body::Operator(OperatorCommand::Stop { .. }), _) => {
+                // The validator refused stops for older missions already.
+                self.operator_stop = true;
+                self.operator_ack = Some(OperatorAck {
+                    seq: Some(message.seq),
+                    verdict: Verdict::Accepted,
+                });
+            }
             // Unit bodies from a non-peer: the validator already rejects these.
             _ => {}
         }
@@ -162,7 +205,28 @@ impl Team {
         // A start counts only in Idle with nothing pending and no stop; otherwise it is dropped
         // (and a later start must name a newer mission anyway).
         let idle = self.phase == Phase::Idle && self.proposal.is_none();
-        let start = self.start.take().filter(|_| idle && stop.is_none());
+        let mut start = None;
+        if let Some((mission, seq)) = self.start.take() {
+            let verdict = match self.mission {
+                // A resend of the start of the mission running now.
+                Some(m) if m == mission && !idle => Verdict::Accepted,
+                Some(last) if mission <= last => Verdict::Rejected(Refusal::NotNewer { last }),
+                _ => match stop {
+                    Some(reason) => Verdict::Rejected(Refusal::Stopped(reason)),
+                    None if !idle => Verdict::Rejected(Refusal::InMission {
+                        current: self.mission.unwrap_or_default(),
+                    }),
+                    None => {
+                        start = Some(mission);
+                        Verdict::Accepted
+                    }
+                },
+            };
+            self.operator_ack = Some(OperatorAck {
+                seq: Some(seq),
+                verdict,
+            });
+        }
         if start.is_some() {
             self.mission = start;
         }
@@ -173,7 +237,11 @@ impl Team {
         let wanted = self
             .gate
             .step(self.phase, measured, start.is_some(), stop.is_some());
-        let mut outgoing = Announcements::default();
+        let mut outgoing = Announcements {
+            mission: self.mission,
+            operator: self.operator_ack,
+            ..Announcements::default()
+        };
         if let Some(reason) = stop {
             self.phase = Phase::Idle;
             self.reset_agreement();
@@ -266,7 +334,10 @@ impl Team {
                         p.last_state_us
                             .is_none_or(|t| now_us > t.saturating_add(staleness_us))
                     })
-                    .map(|(unit, _)| StopReason::PeerStale { unit })
+                    .map(|(unit, p)| match p.rejected {
+                        true => StopReason::PeerRejected { unit },
+                        false => StopReason::PeerStale { unit },
+                    })
             })
             .or(timed_out.then_some(StopReason::PhaseTimeout))
             .or_else(|| {
@@ -404,5 +475,154 @@ mod tests {
             },
         ));
         assert_eq!(team.tick(NOW, &measured, None).phase, Phase::Lift);
+    }
+
+    fn two_units() -> (Team, [f64; 2]) {
+        let settings = TeamSettings {
+            team: "moonhaul".into(),
+            team_size: 2,
+            unit_index: 0,
+            control_period_us: 20_000,
+            peer_staleness_periods: 3,
+        };
+        let team = Team::new(settings, &GateConfig::shipped().unwrap()).unwrap();
+        (team, [30.0, 30.0])
+    }
+
+    fn start(seq: u64, mission: u32) -> Envelope {
+        Envelope {
+            sender: Sender::Operator,
+            body: Body::Operator(OperatorCommand::Start { mission }),
+            ..peer(seq, Announcements::default())
+        }
+    }
+
+    /// Every operator command is answered in the outgoing announcements: a start that runs
+    /// (and its resend), a second start during the mission, an old mission, a start while a
+    /// stop holds, and a stop.
+    #[test]
+    fn operator_commands_are_answered() {
+        let (mut team, forces) = two_units();
+        let measured = Measurements {
+            payload_height_m: 0.0,
+            goal_distance_m: 2.0,
+            grasp_force_n: &forces,
+        };
+        let ack = |d: &Decision| d.announce.operator.unwrap();
+        let accepted = |seq| OperatorAck {
+            seq: Some(seq),
+            verdict: Verdict::Accepted,
+        };
+        // Silent peer: a start is refused because the team is stopped.
+        team.receive(&start(10, 5));
+        let d = team.tick(NOW, &measured, None);
+        assert_eq!(
+            ack(&d),
+            OperatorAck {
+                seq: Some(10),
+                verdict: Verdict::Rejected(Refusal::Stopped(StopReason::PeerStale { unit: 1 }))
+            }
+        );
+        assert_eq!(d.announce.mission, None);
+        team.receive(&peer(1, Announcements::default()));
+        team.receive(&start(11, 5));
+        let d = team.tick(NOW, &measured, None);
+        assert_eq!(ack(&d), accepted(11));
+        assert_eq!(d.announce.mission, Some(5));
+        assert_eq!(team.mission(), Some(5));
+        // A resend of that start is accepted; a newer start during the mission is not.
+        team.receive(&peer(2, Announcements::default()));
+        team.receive(&start(12, 5));
+        assert_eq!(ack(&team.tick(NOW, &measured, None)), accepted(12));
+        team.receive(&peer(3, Announcements::default()));
+        team.receive(&start(13, 6));
+        let d = team.tick(NOW, &measured, None);
+        assert_eq!(
+            ack(&d),
+            OperatorAck {
+                seq: Some(13),
+                verdict: Verdict::Rejected(Refusal::InMission { current: 5 })
+            }
+        );
+        assert_eq!(team.mission(), Some(5));
+        // A stop is answered; afterwards an old mission's start is refused as not newer.
+        team.receive(&peer(4, Announcements::default()));
+        team.receive(&Envelope {
+            body: Body::Operator(OperatorCommand::Stop { mission: Some(5) }),
+            ..start(14, 0)
+        });
+        let d = team.tick(NOW, &measured, None);
+        assert_eq!(ack(&d), accepted(14));
+        assert_eq!(d.hold(), Some(HoldReason::SafetyStop(StopReason::Operator)));
+        team.receive(&peer(5, Announcements::default()));
+        team.receive(&start(15, 4));
+        let d = team.tick(NOW, &measured, None);
+        assert_eq!(
+            ack(&d),
+            OperatorAck {
+                seq: Some(15),
+                verdict: Verdict::Rejected(Refusal::NotNewer { last: 5 })
+            }
+        );
+        // A frame refused before the team is answered too, until the next command.
+        team.operator_refused(None, Refusal::Authentication);
+        team.receive(&peer(6, Announcements::default()));
+        let d = team.tick(NOW, &measured, None);
+        assert_eq!(
+            ack(&d),
+            OperatorAck {
+                seq: None,
+                verdict: Verdict::Rejected(Refusal::Authentication)
+            }
+        );
+    }
+
+    /// A peer whose messages are refused stops the team for that peer once its last good state
+    /// is stale, and the stop clears (the next start runs) once its messages are good again.
+    #[test]
+    fn a_rejected_peer_is_a_peer_fault_that_clears() {
+        let (mut team, forces) = two_units();
+        let measured = Measurements {
+            payload_height_m: 0.0,
+            goal_distance_m: 2.0,
+            grasp_force_n: &forces,
+        };
+        team.receive(&peer(1, Announcements::default()));
+        assert_eq!(
+            team.tick(NOW, &measured, None).hold(),
+            Some(HoldReason::Idle)
+        );
+        team.peer_rejected(1);
+        // Within the bound the last good state serves.
+        assert_eq!(
+            team.tick(NOW + 60_000, &measured, None).hold(),
+            Some(HoldReason::Idle)
+        );
+        let d = team.tick(NOW + 60_001, &measured, None);
+        assert_eq!(
+            d.hold(),
+            Some(HoldReason::SafetyStop(StopReason::PeerRejected { unit: 1 }))
+        );
+        assert_eq!(
+            d.announce.safety_stop,
+            Some(StopReason::PeerRejected { unit: 1 })
+        );
+        // Good again: no stop, and a start runs.
+        let later = NOW + 100_000;
+        team.receive(&Envelope {
+            stamp_us: later,
+            ..peer(2, Announcements::default())
+        });
+        assert_eq!(
+            team.tick(later, &measured, None).hold(),
+            Some(HoldReason::Idle)
+        );
+        team.receive(&start(3, 1));
+        let d = team.tick(later, &measured, None);
+        assert_eq!(d.announce.propose.map(|t| t.to), Some(Phase::Lift));
+        assert_eq!(
+            d.announce.operator.map(|a| a.verdict),
+            Some(Verdict::Accepted)
+        );
     }
 }

@@ -5,8 +5,8 @@
 use crate::auth::{Frame, KeyFile, KeyMismatch, Verifier};
 use crate::config::TeamSettings;
 use crate::message::{
-    Body, Envelope, OperatorCommand, RejectCounts, Rejection, Sender, MAX_SEQ_LEAD_US,
-    PROTOCOL_VERSION,
+    Body, Envelope, MessageBounds, OperatorCommand, RejectCounts, Rejection, Sender,
+    MAX_SEQ_LEAD_US, PROTOCOL_VERSION,
 };
 use serde::Deserialize;
 
@@ -23,6 +23,10 @@ pub struct Validator {
     last_seq: Vec<Option<u64>>,
     /// The stamp bound, µs; `None` for a monitor, whose clock need not be the team's.
     staleness_us: Option<u64>,
+    /// The physical bounds of unit messages; `None` for a monitor, which only displays them.
+    bounds: Option<MessageBounds>,
+    /// The mission the unit is in ([`Validator::set_mission`]), for the stop rule.
+    mission: Option<u32>,
     counts: RejectCounts,
 }
 
@@ -36,8 +40,13 @@ struct Header {
 
 impl Validator {
     /// The validator of the unit `settings` describes, checking tags with `keys`, which must be
-    /// its team's.
-    pub fn new(settings: &TeamSettings, keys: &KeyFile) -> Result<Self, KeyMismatch> {
+    /// its team's, and unit messages against `bounds` (the unit model's,
+    /// [`MessageBounds::of_unit`]).
+    pub fn new(
+        settings: &TeamSettings,
+        keys: &KeyFile,
+        bounds: MessageBounds,
+    ) -> Result<Self, KeyMismatch> {
         keys.check_matches(settings)?;
         Ok(Validator {
             team: settings.team.clone(),
@@ -45,6 +54,8 @@ impl Validator {
             verifier: keys.verifier(),
             last_seq: vec![None; settings.team_size + 1],
             staleness_us: Some(settings.staleness_us()),
+            bounds: Some(bounds),
+            mission: None,
             counts: RejectCounts::default(),
         })
     }
@@ -53,7 +64,8 @@ impl Validator {
     /// units' states): every unit's and the operator's frames of the key file's team are
     /// authenticated and checked as usual, except that stamps are not bounded against the
     /// receiver's clock (`now_us` is ignored), since an observer's clock need not be the
-    /// team's. Replays are still refused by sequence. Never use it to drive a unit.
+    /// team's, and values are not held to physical bounds (it only displays them). Replays are
+    /// still refused by sequence. Never use it to drive a unit.
     pub fn monitor(keys: &KeyFile) -> Self {
         Validator {
             team: keys.team().to_owned(),
@@ -61,12 +73,21 @@ impl Validator {
             verifier: keys.verifier(),
             last_seq: vec![None; keys.team_size() + 1],
             staleness_us: None,
+            bounds: None,
+            mission: None,
             counts: RejectCounts::default(),
         }
     }
 
     pub fn counts(&self) -> &RejectCounts {
         &self.counts
+    }
+
+    /// Tells the validator the mission its unit is in (the latest start it accepted,
+    /// [`crate::Team::mission`]); call it after every tick. An operator stop naming an older
+    /// mission is then refused ([`Rejection::WrongMission`]).
+    pub fn set_mission(&mut self, mission: Option<u32>) {
+        self.mission = mission;
     }
 
     /// Authenticates, decodes and validates one frame from the network at local time `now_us`
@@ -144,13 +165,37 @@ impl Validator {
         if let Some(field) = e.body.non_finite_field() {
             return Err(Rejection::NonFinite { sender, seq, field });
         }
+        if let Some((field, value, bound)) = self.bounds.and_then(|b| e.body.out_of_bounds(&b)) {
+            return Err(Rejection::OutOfBounds {
+                sender,
+                seq,
+                field,
+                value,
+                bound,
+            });
+        }
+        let stop_for = match e.body {
+            Body::Operator(OperatorCommand::Stop { mission }) => Some(mission),
+            _ => None,
+        };
+        if let (Some(Some(got)), Some(current)) = (stop_for, self.mission) {
+            if got < current {
+                return Err(Rejection::WrongMission {
+                    sender,
+                    seq,
+                    got,
+                    current,
+                });
+            }
+        }
         match self.check_fresh(&e, slot, now_us) {
             Ok(()) => {
                 self.last_seq[slot] = Some(seq);
                 Ok(e)
             }
-            // Stopping is always safe: a stop is never lost to a clock or sequence problem.
-            Err(_) if e.body == Body::Operator(OperatorCommand::Stop) => Ok(e),
+            // Stopping is always safe: a stop naming its mission is never lost to a clock or
+            // sequence problem (a stop naming none has no such exception).
+            Err(_) if matches!(stop_for, Some(Some(_))) => Ok(e),
             Err(rejection) => Err(rejection),
         }
     }
@@ -217,6 +262,10 @@ mod tests {
         }
     }
 
+    fn bounds() -> MessageBounds {
+        MessageBounds::of_unit(crate::model::tests::shipped_unit().spec())
+    }
+
     /// The team's keys, a validator for unit 0 and a sealer per sender.
     struct Fixture {
         keys: KeyFile,
@@ -226,7 +275,7 @@ mod tests {
     impl Fixture {
         fn new() -> Self {
             let keys = KeyFile::generate("moonhaul", 3, 1).unwrap();
-            let v = Validator::new(&settings(), &keys).unwrap();
+            let v = Validator::new(&settings(), &keys, bounds()).unwrap();
             Fixture { keys, v }
         }
 
@@ -289,6 +338,11 @@ mod tests {
                     ..t
                 }),
                 safety_stop: Some(StopReason::Fault(FaultKind::Drive)),
+                mission: Some(7),
+                operator: Some(OperatorAck {
+                    seq: Some(3),
+                    verdict: Verdict::Rejected(Refusal::WrongMission { got: 6, current: 7 }),
+                }),
             },
             ..report()
         };
@@ -299,7 +353,10 @@ mod tests {
                 Sender::Operator,
                 Body::Operator(OperatorCommand::Start { mission: 7 }),
             ),
-            (Sender::Operator, Body::Operator(OperatorCommand::Stop)),
+            (
+                Sender::Operator,
+                Body::Operator(OperatorCommand::Stop { mission: None }),
+            ),
         ];
         let mut buffer = Vec::new();
         for (seq, (sender, body)) in bodies.into_iter().enumerate() {
@@ -324,10 +381,12 @@ mod tests {
         let cases: Vec<(Envelope, Rejection)> = vec![
             (
                 Envelope {
-                    version: 2,
+                    version: PROTOCOL_VERSION + 1,
                     ..state(1, 1, now)
                 },
-                Rejection::WrongVersion { got: 2 },
+                Rejection::WrongVersion {
+                    got: PROTOCOL_VERSION + 1,
+                },
             ),
             (
                 Envelope {
@@ -350,7 +409,7 @@ mod tests {
                     Sender::Unit(1),
                     1,
                     now,
-                    Body::Operator(OperatorCommand::Stop),
+                    Body::Operator(OperatorCommand::Stop { mission: None }),
                 ),
                 Rejection::WrongSender {
                     sender: Sender::Unit(1),
@@ -520,6 +579,8 @@ mod tests {
             unknown_sender: 2,
             wrong_sender: 2,
             non_finite: 2,
+            out_of_bounds: 0,
+            wrong_mission: 0,
             stale: 1,
             from_future: 1,
             duplicate: 1,
@@ -573,7 +634,7 @@ mod tests {
             team_size: 1,
             ..settings()
         };
-        let mut v = Validator::new(&solo, &keys).unwrap();
+        let mut v = Validator::new(&solo, &keys, bounds()).unwrap();
         let mut team = Team::new(solo, &GateConfig::shipped().unwrap()).unwrap();
         let attacker = KeyFile::generate("moonhaul", 1, 1).unwrap();
         let forged = attacker
@@ -651,7 +712,7 @@ mod tests {
             })
         );
         // Recorded, replayed after the bound to a unit that never heard it: stale.
-        let mut fresh = Validator::new(&settings(), &f.keys).unwrap();
+        let mut fresh = Validator::new(&settings(), &f.keys, bounds()).unwrap();
         assert!(matches!(
             fresh.receive_frame(&frame, NOW + BOUND + 1),
             Err(Rejection::Stale { .. })
@@ -690,12 +751,12 @@ mod tests {
         // A key file of another team or size does not make a validator.
         let settings = settings();
         assert!(matches!(
-            Validator::new(&settings, &other),
+            Validator::new(&settings, &other, bounds()),
             Err(KeyMismatch::Team { .. })
         ));
         let small = KeyFile::generate("moonhaul", 2, 1).unwrap();
         assert!(matches!(
-            Validator::new(&settings, &small),
+            Validator::new(&settings, &small, bounds()),
             Err(KeyMismatch::TeamSize { .. })
         ));
     }
@@ -705,14 +766,22 @@ mod tests {
         let mut f = Fixture::new();
         let start = operator(NOW, NOW, OperatorCommand::Start { mission: 1 });
         assert!(f.receive(&start, NOW).is_ok());
-        let stop = f.seal(&operator(NOW + 1, NOW, OperatorCommand::Stop));
+        let stop = f.seal(&operator(
+            NOW + 1,
+            NOW,
+            OperatorCommand::Stop { mission: Some(1) },
+        ));
         assert!(f.v.receive_frame(&stop, NOW).is_ok());
         // Replayed, stale, from the future, numbered below the last: still a stop.
         assert!(f.v.receive_frame(&stop, NOW).is_ok());
         assert!(f.v.receive_frame(&stop, NOW + 60 * BOUND).is_ok());
-        let ahead = operator(NOW, NOW + 10 * BOUND, OperatorCommand::Stop);
+        let ahead = operator(
+            NOW,
+            NOW + 10 * BOUND,
+            OperatorCommand::Stop { mission: Some(1) },
+        );
         assert!(f.receive(&ahead, NOW).is_ok());
-        let low = operator(3, NOW, OperatorCommand::Stop);
+        let low = operator(3, NOW, OperatorCommand::Stop { mission: Some(1) });
         assert!(f.receive(&low, NOW).is_ok());
         assert_eq!(f.v.counts().total(), 0);
         // Those out-of-sequence stops did not move the sequence: the next start is accepted.
@@ -720,7 +789,7 @@ mod tests {
         assert!(f.receive(&restart, NOW).is_ok());
         // But a stop still needs the right key, team and epoch.
         let attacker = KeyFile::generate("moonhaul", 3, 1).unwrap();
-        let stop_e = operator(NOW + 3, NOW, OperatorCommand::Stop);
+        let stop_e = operator(NOW + 3, NOW, OperatorCommand::Stop { mission: Some(1) });
         let forged = attacker
             .sealer(Sender::Operator)
             .unwrap()
@@ -804,6 +873,179 @@ mod tests {
         assert!(frame.is_empty());
     }
 
+    /// Each physical bound refuses a value just beyond it, names the field, the sender and the
+    /// bound, counts it, and calls it the peer's fault; values at the tolerance pass.
+    #[test]
+    fn each_physical_bound_refuses_absurd_values_as_the_peers_fault() {
+        let mut f = Fixture::new();
+        let b = bounds();
+        let (lo0, hi0) = b.arm_position_rad[0];
+        type Edit = Box<dyn Fn(&mut UnitTick, f64)>;
+        let cases: Vec<(&str, f64, Edit)> = vec![
+            (
+                "state.base_pose.x_m",
+                b.arena_half_width_m,
+                Box::new(|r, v| r.state.base_pose.x_m = v),
+            ),
+            (
+                "state.base_pose.y_m",
+                -b.arena_half_width_m,
+                Box::new(|r, v| r.state.base_pose.y_m = v),
+            ),
+            (
+                "state.base_pose.yaw_rad",
+                b.max_yaw_rad,
+                Box::new(|r, v| r.state.base_pose.yaw_rad = v),
+            ),
+            (
+                "state.base_velocity",
+                b.forward_mps,
+                Box::new(|r, v| r.state.base_velocity.forward_mps = v),
+            ),
+            (
+                "state.base_velocity",
+                -b.yaw_rate_radps,
+                Box::new(|r, v| r.state.base_velocity.yaw_rate_radps = v),
+            ),
+            (
+                "state.wheels.position_rad",
+                b.max_wheel_position_rad,
+                Box::new(|r, v| r.state.wheels.position_rad[1] = v),
+            ),
+            (
+                "state.wheels.velocity_radps",
+                b.wheel_velocity_radps[0],
+                Box::new(|r, v| r.state.wheels.velocity_radps[0] = v),
+            ),
+            (
+                "state.arm.position_rad",
+                hi0,
+                Box::new(|r, v| r.state.arm.position_rad[0] = v),
+            ),
+            (
+                "state.arm.position_rad",
+                lo0,
+                Box::new(|r, v| r.state.arm.position_rad[0] = v),
+            ),
+            (
+                "state.arm.velocity_radps",
+                -b.arm_velocity_radps[6],
+                Box::new(|r, v| r.state.arm.velocity_radps[6] = v),
+            ),
+            (
+                "command.wheel_velocity_radps",
+                -b.wheel_velocity_radps[1],
+                Box::new(|r, v| r.command.wheel_velocity_radps[1] = v),
+            ),
+            (
+                "command.arm_position_rad",
+                hi0,
+                Box::new(|r, v| r.command.arm_position_rad[0] = v),
+            ),
+        ];
+        let mut seq = NOW - 1000;
+        for (k, (field, bound, edit)) in cases.iter().enumerate() {
+            // At the bound: accepted.
+            let mut at = report();
+            edit(&mut at, *bound);
+            seq += 1;
+            let e = msg(Sender::Unit(1), seq, NOW, Body::Unit(at));
+            assert!(f.receive(&e, NOW).is_ok(), "{field} at {bound}");
+            // Just beyond it: refused, by name.
+            let beyond = bound + bound.signum() * 1e-3 * bound.abs().max(1.0);
+            let mut r = report();
+            edit(&mut r, beyond);
+            seq += 1;
+            let e = msg(Sender::Unit(1), seq, NOW, Body::Unit(r));
+            let got = f.receive(&e, NOW).unwrap_err();
+            let expected = Rejection::OutOfBounds {
+                sender: Sender::Unit(1),
+                seq,
+                field,
+                value: beyond,
+                bound: *bound,
+            };
+            assert_eq!(got, expected);
+            assert_eq!(got.peer_fault(), Some(1));
+            assert_eq!(got.operator_refusal(), None);
+            let text = got.to_string();
+            assert!(text.contains("unit 1") && text.contains(field), "{text}");
+            assert_eq!(f.v.counts().out_of_bounds, k as u64 + 1);
+        }
+        // The case: a finite but absurd position.
+        let mut far = report();
+        far.state.base_pose.x_m = 1e308;
+        let e = msg(Sender::Unit(2), NOW, NOW, Body::Unit(far));
+        let got = f.receive(&e, NOW).unwrap_err();
+        assert!(
+            matches!(
+                got,
+                Rejection::OutOfBounds {
+                    field: "state.base_pose.x_m",
+                    ..
+                }
+            ),
+            "{got}"
+        );
+        assert_eq!(got.peer_fault(), Some(2));
+        // The limits are the URDF's: the shipped arm's first joint is ±2.967 rad.
+        assert!(
+            (hi0 - (2.96706 + JOINT_LIMIT_TOLERANCE_RAD)).abs() < 1e-9,
+            "{hi0}"
+        );
+        assert!((b.arm_velocity_radps[0] - 1.48353 * VELOCITY_MARGIN).abs() < 1e-9);
+        // A monitor only displays: it does not bound values.
+        let mut monitor = Validator::monitor(&f.keys);
+        assert!(monitor.receive_frame(&f.seal(&e), 0).is_ok());
+    }
+
+    /// A stop names its mission: one for an older mission than the unit's is refused (so a
+    /// recorded stop never stops a later mission), the current or a newer one always wins, and
+    /// a stop naming none must be fresh.
+    #[test]
+    fn a_stop_for_an_older_mission_is_refused() {
+        let mut f = Fixture::new();
+        f.v.set_mission(Some(8));
+        let stop = |seq, stamp, mission| operator(seq, stamp, OperatorCommand::Stop { mission });
+        let old = stop(NOW, NOW, Some(7));
+        let got = f.receive(&old, NOW).unwrap_err();
+        assert_eq!(
+            got,
+            Rejection::WrongMission {
+                sender: Sender::Operator,
+                seq: NOW,
+                got: 7,
+                current: 8
+            }
+        );
+        assert_eq!(
+            got.operator_refusal(),
+            Some((Some(NOW), Refusal::WrongMission { got: 7, current: 8 }))
+        );
+        assert!(got.to_string().contains("mission 7"), "{got}");
+        assert_eq!(f.v.counts().wrong_mission, 1);
+        // Replayed stale, still refused; the current and a newer mission's stop win even stale.
+        assert!(matches!(
+            f.receive(&stop(3, NOW - 60 * BOUND, Some(7)), NOW),
+            Err(Rejection::WrongMission { .. })
+        ));
+        assert!(f.receive(&stop(3, NOW - 60 * BOUND, Some(8)), NOW).is_ok());
+        assert!(f.receive(&stop(4, NOW - 60 * BOUND, Some(9)), NOW).is_ok());
+        // No mission named: only fresh and in sequence.
+        assert!(f.receive(&stop(NOW + 1, NOW, None), NOW).is_ok());
+        assert!(matches!(
+            f.receive(&stop(NOW + 2, NOW - BOUND - 1, None), NOW),
+            Err(Rejection::Stale { .. })
+        ));
+        assert!(matches!(
+            f.receive(&stop(NOW, NOW, None), NOW),
+            Err(Rejection::Reordered { .. })
+        ));
+        // A unit in no mission yet takes every authentic stop.
+        f.v.set_mission(None);
+        assert!(f.receive(&stop(5, NOW, Some(1)), NOW).is_ok());
+    }
+
     proptest! {
         /// Whatever arrives, decoding returns and counts a rejection instead of panicking.
         #[test]
@@ -827,7 +1069,7 @@ mod tests {
         ) {
             let mut f = Fixture::new();
             let e = if operator_frame {
-                operator(NOW, NOW, OperatorCommand::Stop)
+                operator(NOW, NOW, OperatorCommand::Stop { mission: None })
             } else {
                 state(1, NOW, NOW)
             };

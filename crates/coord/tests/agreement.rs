@@ -3,7 +3,7 @@
 
 use moonhaul_coord::gate::Measurements;
 use moonhaul_coord::message::{
-    Body, Envelope, OperatorCommand, Sender, StopReason, UnitTick, PROTOCOL_VERSION,
+    Body, Envelope, MessageBounds, OperatorCommand, Sender, StopReason, UnitTick, PROTOCOL_VERSION,
 };
 use moonhaul_coord::{
     Directive, GateConfig, HoldReason, KeyFile, Sealer, Team, TeamSettings, Validator,
@@ -57,7 +57,8 @@ impl Sim {
                     peer_staleness_periods: STALENESS_PERIODS,
                 };
                 SimUnit {
-                    validator: Validator::new(&settings, &keys).unwrap(),
+                    validator: Validator::new(&settings, &keys, MessageBounds::shipped().unwrap())
+                        .unwrap(),
                     sealer: keys.sealer(Sender::Unit(i)).unwrap(),
                     team: Team::new(settings, &gate).unwrap(),
                     seq: 0,
@@ -416,7 +417,11 @@ fn an_operator_stop_stops_all_and_only_a_newer_start_restarts() {
         .units
         .iter()
         .all(|u| u.log.last().unwrap().0 == Phase::Lift));
-    sim.send(None, 41, Body::Operator(OperatorCommand::Stop));
+    sim.send(
+        None,
+        41,
+        Body::Operator(OperatorCommand::Stop { mission: Some(1) }),
+    );
     for t in 41..60 {
         sim.step(t);
     }
@@ -493,7 +498,10 @@ fn forged_frames_on_the_network_change_nothing() {
                     Body::Operator(OperatorCommand::Start { mission: u32::MAX }),
                 ),
                 // Late in the mission, a forged stop too (it would send everyone to Idle).
-                forge(Sender::Operator, Body::Operator(OperatorCommand::Stop)),
+                forge(
+                    Sender::Operator,
+                    Body::Operator(OperatorCommand::Stop { mission: Some(1) }),
+                ),
             ];
             for unit in 0..n {
                 for (from, to) in transitions {

@@ -15,7 +15,9 @@
 use std::time::{Duration, Instant};
 
 use moonhaul_coord::auth::{KeyFile, Sealer};
-use moonhaul_coord::message::{Body, Envelope, OperatorCommand, Sender, PROTOCOL_VERSION};
+use moonhaul_coord::message::{
+    Body, Envelope, MessageBounds, OperatorCommand, Sender, PROTOCOL_VERSION,
+};
 use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
 use moonhaul_core::state::PlanarPose;
@@ -76,7 +78,7 @@ fn unit(i: usize, keys: &KeyFile, boot_us: u64) -> Unit {
     Unit {
         onboard,
         hw,
-        validator: Validator::new(&settings(i), keys).unwrap(),
+        validator: Validator::new(&settings(i), keys, MessageBounds::shipped().unwrap()).unwrap(),
         sealer: keys.sealer(Sender::Unit(i)).unwrap(),
         record: TickRecord::for_team(2),
         frame: Vec::with_capacity(1024),

@@ -10,7 +10,7 @@ use std::time::Duration;
 use moonhaul_coord::auth::{KeyFile, Sealer};
 use moonhaul_coord::clamp::hold_command;
 use moonhaul_coord::message::{
-    Body, Envelope, OperatorCommand, Sender, StopReason, PROTOCOL_VERSION,
+    Body, Envelope, MessageBounds, OperatorCommand, Sender, StopReason, PROTOCOL_VERSION,
 };
 use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
@@ -89,7 +89,12 @@ impl Team {
                 Unit {
                     onboard,
                     hw,
-                    validator: Validator::new(&settings(i), &keys).unwrap(),
+                    validator: Validator::new(
+                        &settings(i),
+                        &keys,
+                        MessageBounds::shipped().unwrap(),
+                    )
+                    .unwrap(),
                     sealer: keys.sealer(Sender::Unit(i)).unwrap(),
                     record: TickRecord::for_team(2),
                     clock_offset_us: 0,
@@ -307,7 +312,7 @@ fn a_motor_fault_stops_the_team() {
 #[test]
 fn an_operator_stop_always_wins_even_replayed() {
     let mut team = lifting();
-    team.operator(OperatorCommand::Stop);
+    team.operator(OperatorCommand::Stop { mission: Some(7) });
     let stop = team.injected[0].clone();
     team.run(1);
     holds_for(&team, 0, |r| r == StopReason::Operator);
@@ -344,7 +349,7 @@ fn forged_replayed_and_foreign_messages_are_rejected_and_counted() {
         .unwrap()
         .seal(&envelope)
         .unwrap();
-    envelope.body = Body::Operator(OperatorCommand::Stop);
+    envelope.body = Body::Operator(OperatorCommand::Stop { mission: None });
     let forged_stop = forger
         .sealer(Sender::Operator)
         .unwrap()
@@ -364,7 +369,7 @@ fn forged_replayed_and_foreign_messages_are_rejected_and_counted() {
         sender: Sender::Unit(1),
         seq: u64::MAX / 2,
         stamp_us: team.now_us,
-        body: Body::Operator(OperatorCommand::Stop),
+        body: Body::Operator(OperatorCommand::Stop { mission: None }),
     };
     if let Ok(frame) = other.sealer(Sender::Unit(1)).unwrap().seal(&foreign) {
         team.injected.push(frame);
@@ -381,7 +386,7 @@ fn forged_replayed_and_foreign_messages_are_rejected_and_counted() {
     assert!(counts.bad_mac >= 2, "{counts:?}");
     assert!(counts.duplicate + counts.reordered >= 1, "{counts:?}");
     assert!(counts.total() >= 4, "{counts:?}");
-    team.operator(OperatorCommand::Stop);
+    team.operator(OperatorCommand::Stop { mission: Some(7) });
     team.run(1);
     holds_for(&team, 0, |r| r == StopReason::Operator);
 }

@@ -69,6 +69,7 @@ fn sim_and_onboard_observations_agree_bit_for_bit() {
                     peer_staleness_periods: 3,
                 },
                 &keys,
+                moonhaul_coord::message::MessageBounds::shipped().unwrap(),
             )
             .unwrap();
             let frame = keys
