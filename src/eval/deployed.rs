@@ -249,6 +249,9 @@ impl Tally {
                 let why = match reason {
                     StopReason::Fault(kind) => format!("{kind:?} fault").to_lowercase(),
                     StopReason::PeerStale { unit } => format!("unit {unit} went stale"),
+                    StopReason::PeerRejected { unit } => {
+                        format!("unit {unit}'s messages were refused (out of bounds)")
+                    }
                     StopReason::PhaseTimeout => "phase agreement timed out".into(),
                     StopReason::PhaseMismatch { unit } => format!("unit {unit}'s phase mismatched"),
                     StopReason::Operator | StopReason::PeerStop { .. } => unreachable!("announce"),

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
 use moonhaul_coord::clamp::anchor_command;
-use moonhaul_coord::message::{FaultKind, Sender};
+use moonhaul_coord::message::{FaultKind, MessageBounds, Sender};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
 use moonhaul_core::state::PlanarPose;
 use moonhaul_core::task_config::TaskConfig;
@@ -345,9 +345,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     keys.check_matches(&settings)
         .with_context(|| format!("key file {}", args.keys.display()))?;
     let sealer = keys.sealer(Sender::Unit(unit))?;
-    let validator = Validator::new(&settings, &keys)?;
     let spec = UnitSpec::from_file(&config.urdf)
         .with_context(|| format!("unit model {}", config.urdf.display()))?;
+    let validator = Validator::new(&settings, &keys, MessageBounds::of_unit(&spec))?;
     let gate = GateConfig::from_file(&config.gate)?;
     let sync = SyncConfig::from_file(&config.sync)?;
     let tasks = TaskConfig::load(&config.tasks)?;
@@ -516,6 +516,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         );
         let output = out.output;
         let sealed = sealer.seal_into(out.message, &mut frame);
+        inbox.validator.set_mission(onboard.mission());
         if let Hardware::Sim(hw) = &mut hardware {
             hw.set_phase(record.phase);
         }
@@ -863,7 +864,10 @@ fn take(sample: &zenoh::sample::Sample, inbox: &mut Inbox, onboard: &mut Onboard
             inbox.deferred.push(envelope)
         }
         Ok(envelope) => onboard.receive(&envelope),
-        Err(rejection) => tracing::debug!(unit = onboard.unit(), %rejection, "rejected"),
+        Err(rejection) => {
+            tracing::debug!(unit = onboard.unit(), %rejection, "rejected");
+            onboard.reject(&rejection);
+        }
     }
 }
 

@@ -47,7 +47,8 @@
 
 use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::message::{
-    Announcements, Body, Envelope, FaultKind, RejectCounts, Sender, UnitTick, PROTOCOL_VERSION,
+    Announcements, Body, Envelope, FaultKind, RejectCounts, Rejection, Sender, UnitTick,
+    PROTOCOL_VERSION,
 };
 use moonhaul_coord::{
     ActionPipeline, Decision, Directive, GateConfig, HoldReason, Increment, Measurements,
@@ -351,6 +352,25 @@ impl Onboard {
     /// This unit's own latched fault, if any.
     pub fn fault(&self) -> Option<FaultKind> {
         self.latched_fault.map(|(kind, _)| kind)
+    }
+
+    /// The mission the team is in (the latest start it accepted): the daemon hands it to its
+    /// validator after every tick ([`moonhaul_coord::Validator::set_mission`]).
+    pub fn mission(&self) -> Option<u32> {
+        self.team.mission()
+    }
+
+    /// Takes in one frame the validator refused: an authenticated peer message out of bounds
+    /// is that peer's fault (the team stops for it once its last good state is stale, never
+    /// latching a fault of this unit), and a refused operator frame is answered in the next
+    /// messages.
+    pub fn reject(&mut self, rejection: &Rejection) {
+        if let Some(unit) = rejection.peer_fault() {
+            self.team.peer_rejected(unit);
+        }
+        if let Some((seq, refusal)) = rejection.operator_refusal() {
+            self.team.operator_refused(seq, refusal);
+        }
     }
 
     /// Takes in one message that passed the validator.

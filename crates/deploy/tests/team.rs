@@ -10,7 +10,8 @@ use std::time::Duration;
 use moonhaul_coord::auth::{KeyFile, Sealer};
 use moonhaul_coord::clamp::hold_command;
 use moonhaul_coord::message::{
-    Body, Envelope, MessageBounds, OperatorCommand, Sender, StopReason, PROTOCOL_VERSION,
+    Body, Envelope, MessageBounds, OperatorCommand, Refusal, Sender, StopReason, Verdict,
+    PROTOCOL_VERSION,
 };
 use moonhaul_coord::{HoldReason, TeamSettings, Validator};
 use moonhaul_core::config::repo_file;
@@ -35,6 +36,8 @@ struct Unit {
     clock_offset_us: i64,
     /// This unit's tick records.
     log: Vec<TickRecord>,
+    /// A key holder gone wrong: what it does to its message before sealing it.
+    tamper: Option<fn(&mut Envelope)>,
 }
 
 struct Team {
@@ -99,6 +102,7 @@ impl Team {
                     record: TickRecord::for_team(2),
                     clock_offset_us: 0,
                     log: Vec::new(),
+                    tamper: None,
                 }
             })
             .collect();
@@ -138,14 +142,16 @@ impl Team {
             let read = u.hw.read(&mut reading);
             for (from, frame) in outbox.iter().enumerate() {
                 if from != i && !frame.is_empty() && deliver(from, i) {
-                    if let Ok(e) = u.validator.receive_frame(frame, now) {
-                        u.onboard.receive(&e);
+                    match u.validator.receive_frame(frame, now) {
+                        Ok(e) => u.onboard.receive(&e),
+                        Err(r) => u.onboard.reject(&r),
                     }
                 }
             }
             for frame in &injected {
-                if let Ok(e) = u.validator.receive_frame(frame, now) {
-                    u.onboard.receive(&e);
+                match u.validator.receive_frame(frame, now) {
+                    Ok(e) => u.onboard.receive(&e),
+                    Err(r) => u.onboard.reject(&r),
                 }
             }
             if u.hw.fault().is_some() {
@@ -159,7 +165,12 @@ impl Team {
                 &mut u.record,
             );
             let output = out.output;
-            next[i] = u.sealer.seal(out.message).unwrap();
+            let mut message = out.message.clone();
+            if let Some(tamper) = u.tamper {
+                tamper(&mut message);
+            }
+            next[i] = u.sealer.seal(&message).unwrap();
+            u.validator.set_mission(u.onboard.mission());
             // A rejected write still cycles the mock; the fault latches next tick.
             let _ = u.hw.write(&output);
             u.log.push(u.record.clone());
@@ -310,23 +321,92 @@ fn a_motor_fault_stops_the_team() {
 }
 
 #[test]
-fn an_operator_stop_always_wins_even_replayed() {
+fn an_operator_stop_wins_even_replayed_but_never_stops_a_later_mission() {
     let mut team = lifting();
     team.operator(OperatorCommand::Stop { mission: Some(7) });
     let stop = team.injected[0].clone();
     team.run(1);
     holds_for(&team, 0, |r| r == StopReason::Operator);
     holds_for(&team, 1, |r| r == StopReason::Operator);
-    // The team stays in Idle after the stop.
+    // The team stays in Idle after the stop; a replay within the mission stops it again
+    // (stopping is always safe).
     team.run(5);
     assert_eq!((team.phase(0), team.phase(1)), (Phase::Idle, Phase::Idle));
-    // Restart, then replay the old stop much later: it still stops (stopping is always safe).
+    team.injected.push(stop.clone());
+    team.run(1);
+    holds_for(&team, 0, |r| r == StopReason::Operator);
+    // Restart, then replay the old stop much later: it names mission 7, so mission 8 goes on.
     team.operator(OperatorCommand::Start { mission: 8 });
     team.run(30);
     assert_eq!(team.phase(0), Phase::Lift);
+    let before = team.last(0).rejected.wrong_mission;
     team.injected.push(stop);
+    team.run(3);
+    assert_eq!((team.phase(0), team.phase(1)), (Phase::Lift, Phase::Lift));
+    assert!(team.last(0).rejected.wrong_mission > before);
+    // Each unit answers it, by sequence number, as a stop for the wrong mission.
+    let moonhaul_coord::message::Body::Unit(tick) = &team.units[0].onboard.last_message().body
+    else {
+        unreachable!()
+    };
+    assert_eq!(tick.announce.mission, Some(8));
+    assert!(
+        matches!(
+            tick.announce.operator.map(|a| a.verdict),
+            Some(Verdict::Rejected(Refusal::WrongMission {
+                got: 7,
+                current: 8
+            }))
+        ),
+        "{:?}",
+        tick.announce.operator
+    );
+    // The stop for mission 8 stops it.
+    team.operator(OperatorCommand::Stop { mission: Some(8) });
     team.run(1);
     holds_for(&team, 0, |r| r == StopReason::Operator);
+}
+
+/// A key holder whose messages carry absurd finite values (the x = 1e308): the
+/// receiver refuses them by name, holds for that peer once its last good state is stale, never
+/// latches a fault of its own, and its team runs the next mission once the peer is good again.
+#[test]
+fn a_key_holder_with_absurd_values_is_a_named_peer_fault_that_clears() {
+    let mut team = lifting();
+    team.units[1].tamper = Some(|e| {
+        if let Body::Unit(tick) = &mut e.body {
+            tick.state.base_pose.x_m = 1e308;
+        }
+    });
+    team.run(10);
+    holds_for(&team, 0, |r| r == StopReason::PeerRejected { unit: 1 });
+    // Its peer hears the announced stop and stops too, for unit 0's reason.
+    holds_for(&team, 1, |r| r == StopReason::PeerStop { unit: 0 });
+    for u in &team.units {
+        assert_eq!(u.onboard.fault(), None, "unit {}", u.onboard.unit());
+        assert!(u.log.iter().all(|r| r.fault.is_none()));
+    }
+    assert!(
+        team.last(0).rejected.out_of_bounds >= 8,
+        "{:?}",
+        team.last(0).rejected
+    );
+    // The peer is good again: the stop clears (an Idle hold, no safety stop) ...
+    team.units[1].tamper = None;
+    team.run(5);
+    for i in 0..2 {
+        assert_eq!(team.last(i).hold, Some(HoldReason::Idle), "unit {i}");
+    }
+    // ... and the next start runs: the team lifts and moves again.
+    team.operator(OperatorCommand::Start { mission: 9 });
+    team.run(30);
+    assert_eq!((team.phase(0), team.phase(1)), (Phase::Lift, Phase::Lift));
+    let log = &team.units[0].log;
+    let recent = &log[log.len() - 20..];
+    assert!(recent
+        .iter()
+        .any(|r| r.hold.is_none() && r.issued != r.team_previous[0]));
+    assert_eq!(team.units[0].onboard.fault(), None);
 }
 
 #[test]
