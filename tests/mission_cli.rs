@@ -116,15 +116,35 @@ fn mock_team(dir: &Path, keys: &Path, port: u16) -> [Daemon; 2] {
 }
 
 fn console(cmd: &str, keys: &Path, port: u16) -> String {
-    let out = common::moonhaul(&[
+    common::stdout(&console_run(cmd, keys, port, &[]))
+}
+
+/// A console run, whatever its outcome.
+fn console_run(cmd: &str, keys: &Path, port: u16, extra: &[&str]) -> std::process::Output {
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut args = vec![
         "mission",
         cmd,
         "--keys",
         keys.to_str().unwrap(),
         "--connect",
-        &format!("tcp/127.0.0.1:{port}"),
-    ]);
-    common::stdout(&out)
+        &endpoint,
+    ];
+    args.extend_from_slice(extra);
+    common::moonhaul(&args)
+}
+
+/// Stdout and stderr of a console run that must fail with our error status (1).
+fn console_fails(cmd: &str, keys: &Path, port: u16, extra: &[&str]) -> String {
+    let out = console_run(cmd, keys, port, extra);
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(!text.contains("panicked"), "{text}");
+    text
 }
 
 /// Asks for the team's status until `done` says so (or fails after `timeout`).
@@ -275,7 +295,11 @@ fn an_operator_stop_from_the_console_holds_the_team() {
         s.matches(": lift").count() + s.matches(": transport").count() == 2
     });
     let stopped = console("stop", &keys, port);
-    assert!(stopped.contains("stop sent"), "{stopped}");
+    assert!(
+        stopped.contains("unit 0: acknowledged") && stopped.contains("unit 1: acknowledged"),
+        "{stopped}"
+    );
+    assert!(stopped.contains("stop of mission"), "{stopped}");
     std::thread::sleep(Duration::from_millis(300));
     for d in &mut team {
         d.signal("-INT");
@@ -407,4 +431,71 @@ fn the_daemon_refuses_bad_arguments_by_name() {
         assert!(!stderr.contains("panicked"), "{extra:?}: {stderr}");
         assert!(stderr.contains(needle), "{extra:?}: {stderr}");
     }
+}
+
+#[test]
+fn a_stop_that_no_unit_hears_fails_naming_the_silent_units() {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = keys(dir.path());
+    let text = console_fails(
+        "stop",
+        &keys,
+        free_port(),
+        &["--listen-s", "0.3", "--ack-timeout-s", "1"],
+    );
+    assert!(
+        text.contains("unit 0: silent") && text.contains("unit 1: silent"),
+        "{text}"
+    );
+    assert!(text.contains("2 of 2 units did not acknowledge"), "{text}");
+    for bad in ["0", "-1", "NaN", "61"] {
+        let text = console_fails("stop", &keys, free_port(), &["--ack-timeout-s", bad]);
+        assert!(text.contains("--ack-timeout-s"), "{text}");
+    }
+}
+
+#[test]
+fn console_starts_are_answered_per_unit_and_refusals_say_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = keys(dir.path());
+    let port = free_port();
+    let _team = mock_team(dir.path(), &keys, port);
+    await_status(&keys, port, Duration::from_secs(30), |s| {
+        !s.contains("not heard")
+    });
+    // Another key file of the same team name: the units refuse it (at the transport), so the
+    // console says so instead of "no unit answered", and nothing starts.
+    let other = tempfile::tempdir().unwrap();
+    let wrong = self::keys(other.path());
+    let text = console_fails("start", &wrong, port, &["--ack-timeout-s", "2"]);
+    assert!(
+        text.contains("unit 0: rejected: authentication")
+            && text.contains("unit 1: rejected: authentication"),
+        "{text}"
+    );
+    let status = console("status", &keys, port);
+    assert_eq!(status.matches(": idle").count(), 2, "{status}");
+    // The real start: every unit acknowledges it.
+    let started = console("start", &keys, port);
+    assert!(
+        started.contains("unit 0: acknowledged") && started.contains("unit 1: acknowledged"),
+        "{started}"
+    );
+    await_status(&keys, port, Duration::from_secs(30), |s| {
+        s.matches(": lift").count() + s.matches(": transport").count() == 2
+    });
+    // A second start during the mission: refused by both, and the console says why.
+    std::thread::sleep(Duration::from_millis(1100));
+    let text = console_fails("start", &keys, port, &[]);
+    assert!(
+        text.contains("unit 0: rejected: already in mission")
+            && text.contains("unit 1: rejected: already in mission"),
+        "{text}"
+    );
+    let status = console("status", &keys, port);
+    assert_eq!(
+        status.matches(": lift").count() + status.matches(": transport").count(),
+        2,
+        "the mission goes on: {status}"
+    );
 }

@@ -5,17 +5,28 @@
 //! world's time): it listens to the units first and stamps its commands with the newest unit
 //! stamp it accepted plus the time since it heard it. A start names a mission number that must
 //! exceed every earlier one; the console uses the Unix time in seconds, so starts from any
-//! console increase. A stop is sent several times (it is idempotent, and a stop under a valid
-//! key always wins at the units).
+//! console increase. A stop names the mission the units report (so a recording of it never
+//! stops a later mission; with no unit heard it names none and must then arrive fresh).
+//!
+//! **Honest answers.** Every unit reports, in each state message, what it did with the latest
+//! operator command ([`moonhaul_coord::message::OperatorAck`]). After sending, `start` and
+//! `stop` wait up to `--ack-timeout-s` (resending every half second, each with a new sequence
+//! number) for each unit's answer to one of the commands it sent, then print per unit:
+//! acknowledged, rejected and why (authentication, wrong mission, already in a mission, …), or
+//! silent, and fail unless every unit acknowledged. A console whose key file is not the team's
+//! cannot join the team's network at all (zenoh refuses its session before any frame is read),
+//! so no unit can answer it: when its session has no peer although an endpoint accepts TCP
+//! connections, it reports every unit as having rejected it for authentication.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::{KeyFile, Sealer};
 use moonhaul_coord::message::{
-    Body, Envelope, OperatorCommand, Sender, UnitTick, PROTOCOL_VERSION,
+    Body, Envelope, OperatorAck, OperatorCommand, Refusal, Rejection, Sender, UnitTick, Verdict,
+    PROTOCOL_VERSION,
 };
 use moonhaul_coord::Validator;
 use moonhaul_core::state::Phase;
@@ -33,6 +44,9 @@ pub struct ConsoleArgs {
     /// How long to listen to the units first, s.
     #[arg(long, default_value_t = 1.0, value_name = "S")]
     pub listen_s: f64,
+    /// `start` and `stop`: how long to wait for every unit's answer, s (in (0, 60]).
+    #[arg(long, default_value_t = 5.0, value_name = "S")]
+    pub ack_timeout_s: f64,
 }
 
 /// What the console knows of a unit.
@@ -54,6 +68,9 @@ pub struct Console {
     team_size: usize,
     seq: u64,
     pub units: BTreeMap<usize, UnitView>,
+    /// Units heard only in frames that fail authentication under this key file.
+    unauthenticated: BTreeSet<usize>,
+    connect: Vec<String>,
 }
 
 impl Console {
@@ -85,6 +102,8 @@ impl Console {
             team_size: keys.team_size(),
             seq: 0,
             units: BTreeMap::new(),
+            unauthenticated: BTreeSet::new(),
+            connect: connect.to_vec(),
         })
     }
 
@@ -109,8 +128,15 @@ impl Console {
     }
 
     fn take(&mut self, bytes: &[u8]) {
-        let Ok(envelope) = self.validator.receive_frame(bytes, 0) else {
-            return;
+        let envelope = match self.validator.receive_frame(bytes, 0) {
+            Ok(envelope) => envelope,
+            Err(Rejection::BadMac {
+                sender: Sender::Unit(i),
+            }) => {
+                self.unauthenticated.insert(i);
+                return;
+            }
+            Err(_) => return,
         };
         if let (Sender::Unit(i), Body::Unit(tick)) = (envelope.sender, envelope.body) {
             self.units.insert(
@@ -132,8 +158,8 @@ impl Console {
             .max()
     }
 
-    /// Signs and sends an operator command.
-    pub async fn send(&mut self, command: OperatorCommand) -> Result<()> {
+    /// Signs and sends an operator command; returns its sequence number.
+    pub async fn send(&mut self, command: OperatorCommand) -> Result<u64> {
         let stamp_us = self.team_now_us().unwrap_or_else(wall_us);
         // Sequence numbers follow the team clock (message.rs's convention), so a later console
         // always sends higher ones than an earlier one did.
@@ -148,7 +174,88 @@ impl Console {
         };
         let frame = self.sealer.seal(&envelope)?;
         network::put(&self.publisher, &frame).await?;
-        Ok(())
+        Ok(self.seq)
+    }
+
+    /// The mission the units report (the newest, should they differ).
+    pub fn mission(&self) -> Option<u32> {
+        self.units
+            .values()
+            .filter_map(|u| u.tick.announce.mission)
+            .max()
+    }
+
+    /// Sends `command` (again every half second, each time with a new sequence number) until
+    /// every unit answered one of the copies or `timeout` passed; returns each unit's answer.
+    pub async fn command(
+        &mut self,
+        command: OperatorCommand,
+        timeout: Duration,
+    ) -> Result<Vec<Answer>> {
+        let deadline = Instant::now() + timeout;
+        let mut sent = Vec::new();
+        loop {
+            sent.push(self.send(command).await?);
+            let resend = Instant::now() + Duration::from_millis(500);
+            while Instant::now() < resend.min(deadline) {
+                self.listen(Duration::from_millis(50)).await;
+                if self
+                    .answers(&sent)
+                    .iter()
+                    .all(|a| matches!(a, Answer::Acknowledged | Answer::Rejected(_)))
+                {
+                    return Ok(self.answers(&sent));
+                }
+            }
+            if Instant::now() >= deadline {
+                break;
+            }
+        }
+        let mut answers = self.answers(&sent);
+        if self.units.is_empty() && self.session.info().peers_zid().await.next().is_none() {
+            if let Some(endpoint) = self.connect.iter().find(|e| accepts_tcp(e)) {
+                let why = format!(
+                    "authentication: {endpoint} accepts connections but the team refused this \
+                     console's session (its key file is not the team's)"
+                );
+                answers.fill(Answer::Rejected(why));
+            }
+        }
+        Ok(answers)
+    }
+
+    /// Each unit's answer to one of the commands numbered `sent`.
+    fn answers(&self, sent: &[u64]) -> Vec<Answer> {
+        (0..self.team_size)
+            .map(|i| {
+                let Some(u) = self.units.get(&i) else {
+                    return match self.unauthenticated.contains(&i) {
+                        true => Answer::Rejected(
+                            "authentication: its frames fail this key file's check, so it \
+                             refuses this console's frames the same way"
+                                .into(),
+                        ),
+                        false => Answer::Silent,
+                    };
+                };
+                match u.tick.announce.operator {
+                    Some(OperatorAck {
+                        seq: Some(seq),
+                        verdict,
+                    }) if sent.contains(&seq) => match verdict {
+                        Verdict::Accepted => Answer::Acknowledged,
+                        Verdict::Rejected(why) => Answer::Rejected(why.to_string()),
+                    },
+                    Some(OperatorAck {
+                        seq: None,
+                        verdict: Verdict::Rejected(Refusal::Authentication),
+                    }) => Answer::Unanswered(
+                        "its latest refused operator frame failed authentication".into(),
+                    ),
+                    _ => Answer::Unanswered("heard, but it has not answered".into()),
+                }
+            })
+            .collect()
     }
 
     /// Whether every unit of the team has been heard.
@@ -159,6 +266,68 @@ impl Console {
     pub async fn close(self) {
         let _ = self.session.close().await;
     }
+}
+
+/// What a unit answered an operator command.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Answer {
+    Acknowledged,
+    /// Refused, and why.
+    Rejected(String),
+    /// Its states arrive, but none answers a command this console sent (what it last said).
+    Unanswered(String),
+    /// Nothing heard from it.
+    Silent,
+}
+
+impl std::fmt::Display for Answer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Answer::Acknowledged => f.write_str("acknowledged"),
+            Answer::Rejected(why) => write!(f, "rejected: {why}"),
+            Answer::Unanswered(what) => write!(f, "no answer ({what})"),
+            Answer::Silent => f.write_str("silent (not heard)"),
+        }
+    }
+}
+
+/// Whether a `tcp/host:port` endpoint accepts a TCP connection within a second.
+fn accepts_tcp(endpoint: &str) -> bool {
+    use std::net::ToSocketAddrs as _;
+    let Some(addr) = endpoint.strip_prefix("tcp/") else {
+        return false;
+    };
+    let Ok(mut addrs) = addr.to_socket_addrs() else {
+        return false;
+    };
+    addrs.any(|a| std::net::TcpStream::connect_timeout(&a, Duration::from_secs(1)).is_ok())
+}
+
+/// Prints each unit's answer to `what`; fails, naming the units, unless every unit
+/// acknowledged.
+fn report(console: &Console, what: &str, answers: &[Answer]) -> Result<()> {
+    println!(
+        "{what} (team {}, {} units):",
+        console.team, console.team_size
+    );
+    for (i, a) in answers.iter().enumerate() {
+        println!("  unit {i}: {a}");
+    }
+    let failed: Vec<String> = answers
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| **a != Answer::Acknowledged)
+        .map(|(i, a)| format!("unit {i} {a}"))
+        .collect();
+    if failed.is_empty() {
+        return Ok(());
+    }
+    bail!(
+        "{what}: {} of {} units did not acknowledge: {}",
+        failed.len(),
+        answers.len(),
+        failed.join("; ")
+    )
 }
 
 /// A new mission number: Unix seconds, so every later start from any console is newer.
@@ -197,31 +366,35 @@ pub async fn run(command: &str, args: &ConsoleArgs) -> Result<()> {
     if !(args.listen_s.is_finite() && args.listen_s > 0.0 && args.listen_s <= 60.0) {
         bail!("--listen-s {}: must be in (0, 60]", args.listen_s);
     }
+    if !(args.ack_timeout_s.is_finite() && args.ack_timeout_s > 0.0 && args.ack_timeout_s <= 60.0) {
+        bail!("--ack-timeout-s {}: must be in (0, 60]", args.ack_timeout_s);
+    }
+    let ack_timeout = Duration::from_secs_f64(args.ack_timeout_s);
     let mut console = Console::open(&args.keys, &args.connect)
         .await
         .with_context(|| format!("connecting to {:?}", args.connect))?;
     console.listen(Duration::from_secs_f64(args.listen_s)).await;
     let result = match command {
         "start" => {
-            if console.units.is_empty() {
-                bail!(
-                    "no unit of team {} answered on {:?}",
-                    console.team,
-                    args.connect
-                );
-            }
-            let mission = start(&mut console, Duration::from_secs(10)).await?;
-            println!("mission {mission} started");
-            Ok(())
+            let mission = new_mission();
+            let answers = console
+                .command(OperatorCommand::Start { mission }, ack_timeout)
+                .await?;
+            report(&console, &format!("start of mission {mission}"), &answers)
+                .map(|()| println!("mission {mission} started"))
         }
         "stop" => {
-            for _ in 0..5 {
-                console.send(OperatorCommand::Stop).await?;
-                console.listen(Duration::from_millis(100)).await;
-            }
-            println!("stop sent to team {}", console.team);
+            let mission = console.mission();
+            let answers = console
+                .command(OperatorCommand::Stop { mission }, ack_timeout)
+                .await?;
+            let what = match mission {
+                Some(m) => format!("stop of mission {m}"),
+                None => "stop (no unit reported a mission)".to_owned(),
+            };
+            let result = report(&console, &what, &answers);
             print_status(&console);
-            Ok(())
+            result
         }
         _ => {
             print_status(&console);
