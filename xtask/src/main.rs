@@ -6,6 +6,8 @@
 //! - `cargo xtask train-all` — retrain the bundled phase policies from scratch.
 //! - `cargo xtask bench [ARGS…]` — moonhaul beside MuJoCo and rsl_rl, alternating, as ratios.
 //! - `cargo xtask cargo ARGS…` — any cargo command with libtorch configured (clippy, bench, run).
+//! - `cargo xtask vendor-check` — `vendor/*` are their crates.io releases plus `moonhaul.patch`
+//!   (see `vendor_check.rs`; CI runs it).
 //!
 //! Set-up means libtorch for `moonhaul-learn`: PyTorch from PyPI (the exact version `tch`
 //! links) in a project-local venv, installed once and reused. torch-sys finds it through
@@ -20,10 +22,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 
+mod sha256;
+mod vendor_check;
+
 /// The PyTorch release `tch` 0.26 is built against.
 const TORCH_VERSION: &str = "2.13.0";
 
-const USAGE: &str = "usage: cargo xtask <demo|test|setup|train-all|bench|cargo ARGS...>
+const USAGE: &str =
+    "usage: cargo xtask <demo|test|setup|train-all|bench|vendor-check|cargo ARGS...>
 
   demo          run the main job: lift, transport and place a payload in simulation with
                 two wheel-arm units (the scripted controller through gate and clamp), and
@@ -37,6 +43,9 @@ const USAGE: &str = "usage: cargo xtask <demo|test|setup|train-all|bench|cargo A
                 and act against rsl_rl 5.5.1, alternating, printing the ratios (installs
                 mujoco and rsl_rl into a separate venv, MOONHAUL_BENCH_VENV or .venv-bench;
                 ARGS go to bench/side_by_side.py, e.g. --rounds 5 --only sim)
+  vendor-check  check that vendor/rapier3d and vendor/parry3d are their crates.io
+                releases plus their moonhaul.patch (downloads each release once, cached
+                under $CARGO_HOME/registry/cache/moonhaul-vendor-check/)
   cargo ARGS    run any cargo command with libtorch configured, e.g.
                 `cargo xtask cargo clippy --workspace --all-targets -- -D warnings`";
 
@@ -48,6 +57,7 @@ fn main() -> ExitCode {
         Some("setup") => setup().map(|_| ()),
         Some("train-all") => train_all(),
         Some("bench") => bench(&args[1..]),
+        Some("vendor-check") => vendor_check::vendor_check(),
         Some("cargo") => setup().and_then(|venv| cargo(&venv, &args[1..])),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
