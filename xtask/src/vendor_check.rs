@@ -126,17 +126,19 @@ fn check_crate(root: &Path, dir: &str) -> Result<String, String> {
         .args(["init", "--quiet"]))
     .map_err(|e| format!("{rel}: {e}"))?;
     let patch = vendored.join("moonhaul.patch");
-    run(Command::new("git")
+    let applied = Command::new("git")
         .current_dir(&upstream)
         .args(["apply", "--whitespace=nowarn"])
-        .arg(&patch))
-    .map_err(|e| {
-        format!(
-            "{rel}/moonhaul.patch does not apply to {name} {version} ({e}; git's message is \
-             above){}",
+        .arg(&patch)
+        .output()
+        .map_err(|e| format!("{rel}: cannot start git: {e}"))?;
+    if !applied.status.success() {
+        return Err(format!(
+            "{rel}/moonhaul.patch does not apply to {name} {version}: {}{}",
+            String::from_utf8_lossy(&applied.stderr).trim(),
             regenerate_hint(dir, &name, &version, &crate_file)
-        )
-    })?;
+        ));
+    }
 
     let mut differences = Vec::new();
     let files = compare_trees(&upstream.join("src"), &vendored.join("src"), "src")?;
@@ -270,8 +272,8 @@ fn fetch_crate(name: &str, version: &str, checksum: &str) -> Result<PathBuf, Str
     let dir = cache_dir().unwrap_or_else(|| {
         let dir = env::temp_dir();
         eprintln!(
-            "xtask: no writable cargo home for the download cache: {file_name} goes to {} \
-             (downloaded again next time)",
+            "xtask: no writable cargo home for the download cache: {file_name} is kept in {} \
+             instead",
             dir.display()
         );
         dir
