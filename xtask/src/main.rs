@@ -22,7 +22,6 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 
-mod sha256;
 mod vendor_check;
 
 /// The PyTorch release `tch` 0.26 is built against.

@@ -21,7 +21,8 @@
 //! The download shells out to `python3` (its `urllib`): the standard library has no HTTPS
 //! client, `python3` is on every machine this project runs on (CI included; `cargo xtask setup`
 //! needs it anyway) while `curl` is not, and one code path is easier to trust than a fallback.
-//! Hashing is [`crate::sha256`], so an offline run needs only `tar` and `git`.
+//! Hashing is the `sha2` crate's (the workspace's own, as the key files use), so an offline
+//! run needs only `tar` and `git`.
 
 use std::collections::BTreeSet;
 use std::env;
@@ -29,7 +30,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::{run, sha256, stage, workspace_root};
+use crate::{run, stage, workspace_root};
+use sha2::{Digest as _, Sha256};
 
 /// The SHA-256 of each vendored release's `.crate`, as crates.io publishes it: the `cksum`
 /// field of that version's line in the sparse index (`https://index.crates.io/ra/pi/rapier3d`,
@@ -280,7 +282,7 @@ fn fetch_crate(name: &str, version: &str, checksum: &str) -> Result<PathBuf, Str
     });
     let path = dir.join(&file_name);
     if let Ok(bytes) = fs::read(&path) {
-        let sum = sha256::hex_digest(&bytes);
+        let sum = hex_sha256(&bytes);
         if sum == checksum {
             return Ok(path);
         }
@@ -296,7 +298,7 @@ fn fetch_crate(name: &str, version: &str, checksum: &str) -> Result<PathBuf, Str
     })?;
     let bytes =
         fs::read(&partial).map_err(|e| format!("cannot read {}: {e}", partial.display()))?;
-    let sum = sha256::hex_digest(&bytes);
+    let sum = hex_sha256(&bytes);
     if sum != checksum {
         let _ = fs::remove_file(&partial);
         return Err(format!(
@@ -481,6 +483,14 @@ impl Drop for TempDir {
     }
 }
 
+/// The lower-case hex SHA-256 of `bytes`, as crates.io writes its checksums.
+fn hex_sha256(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -499,6 +509,15 @@ mod tests {
 
     fn compare(tmp: &TempDir) -> TreeComparison {
         compare_trees(&tmp.0.join("want"), &tmp.0.join("have"), "src").unwrap()
+    }
+
+    #[test]
+    fn checksums_are_hex_sha256() {
+        // FIPS 180-2, appendix B.1.
+        assert_eq!(
+            hex_sha256(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
     }
 
     #[test]
