@@ -229,6 +229,76 @@ fn check_commands(records: &[TickRecord]) {
     }
 }
 
+/// A key holder gone wrong, as processes: unit 1 seals, with its genuine key, a second of
+/// state messages claiming a base 1e308 m away (`--inject absurd-state@S`). Unit 0 refuses them
+/// as out of bounds and holds on a stop that names unit 1, never on a fault of its own; once
+/// unit 1 is sane again the stop clears and the next start flies.
+#[test]
+fn a_key_holder_sending_absurd_states_is_its_own_fault_and_the_team_starts_again() {
+    const ABSURD_AT_S: f64 = 6.0;
+    let dir = tempfile::tempdir().unwrap();
+    let keys = keys(dir.path());
+    let port = free_port();
+    let listen = format!("tcp/127.0.0.1:{port}");
+    let mut u0 = unit(
+        dir.path(),
+        &keys,
+        0,
+        "mock",
+        &["--listen", &listen, "--connect", &listen],
+        &[],
+    );
+    let inject = format!("--inject=absurd-state@{ABSURD_AT_S}");
+    let mut u1 = unit(
+        dir.path(),
+        &keys,
+        1,
+        "mock",
+        &["--connect", &listen, "--listen", "tcp/127.0.0.1:0"],
+        &[&inject],
+    );
+    await_status(&keys, port, Duration::from_secs(30), |s| {
+        !s.contains("not heard")
+    });
+    console("start", &keys, port);
+    await_status(&keys, port, Duration::from_secs(60), |s| {
+        s.contains("PeerRejected { unit: 1 }")
+    });
+    // Sane again: the stop clears, and a new start is acknowledged by both and flies.
+    await_status(&keys, port, Duration::from_secs(30), |s| {
+        !s.contains("stopped") && s.matches(": idle").count() == 2
+    });
+    console("start", &keys, port);
+    await_status(&keys, port, Duration::from_secs(60), |s| {
+        s.matches(": lift").count() == 2 && !s.contains("stopped")
+    });
+    // Longer than the log's 1 s flush period.
+    std::thread::sleep(Duration::from_millis(1500));
+    for u in [&mut u0, &mut u1] {
+        u.signal("-TERM");
+        assert!(u.wait(Duration::from_secs(10)).success());
+    }
+    let log = read_unit_log(&dir.path().join("unit-0.mcap")).unwrap();
+    check_commands(&log);
+    let peer_fault = HoldReason::SafetyStop(StopReason::PeerRejected { unit: 1 });
+    let stop = log
+        .iter()
+        .position(|r| r.hold == Some(peer_fault))
+        .expect("unit 0 held on unit 1's fault");
+    assert!(log.iter().all(|r| r.fault.is_none()), "no fault of its own");
+    assert!(
+        log[stop].rejected.out_of_bounds > 0,
+        "{:?}",
+        log[stop].rejected
+    );
+    assert!(
+        log[stop..]
+            .iter()
+            .any(|r| r.phase == Phase::Lift && r.hold.is_none()),
+        "the team lifted again after the stop"
+    );
+}
+
 #[test]
 fn a_mock_team_carries_into_transport_and_a_killed_unit_stops_its_peer() {
     let dir = tempfile::tempdir().unwrap();

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
 use moonhaul_coord::clamp::anchor_command;
-use moonhaul_coord::message::{FaultKind, MessageBounds, Sender};
+use moonhaul_coord::message::{Body, FaultKind, MessageBounds, Sender};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
 use moonhaul_core::state::PlanarPose;
 use moonhaul_core::task_config::TaskConfig;
@@ -58,7 +58,9 @@ pub enum HalKind {
 /// A fault to inject at a given time, for tests and drills: `motor:3@2.5` (joint 3 at 2.5 s
 /// after start), `emcy:0@1`, `heartbeat:8@4`, `nan:2@1` on the mock or emulated CAN drives;
 /// `policy-nan@3` makes the policy's output non-finite; `drop-peers@3` drops all peer traffic
-/// (a network partition) from then on.
+/// (a network partition) from then on; `absurd-state@3` makes this unit a key holder gone wrong
+/// for [`ABSURD_STATE_S`]: its state messages, sealed with its genuine key, claim a base at
+/// x = 1e308 m (its peers must hold on a named peer fault and take it back once it is sane).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Injection {
     pub at_s: f64,
@@ -70,7 +72,13 @@ pub enum Injected {
     Hardware(InjectedFault),
     PolicyNan,
     DropPeers,
+    AbsurdState,
 }
+
+/// How long an `absurd-state` drill lasts.
+pub const ABSURD_STATE_S: f64 = 1.0;
+/// The base position an `absurd-state` drill announces: finite, far beyond any arena.
+const ABSURD_X_M: f64 = 1e308;
 
 impl std::str::FromStr for Injection {
     type Err = String;
@@ -79,7 +87,7 @@ impl std::str::FromStr for Injection {
         let bad = || {
             format!(
                 "{s:?}: expected KIND[:JOINT]@SECONDS, KIND one of motor, emcy, heartbeat, nan, \
-                 policy-nan, drop-peers"
+                 policy-nan, drop-peers, absurd-state"
             )
         };
         let (what, at) = s.split_once('@').ok_or_else(bad)?;
@@ -104,6 +112,7 @@ impl std::str::FromStr for Injection {
         let what = match (kind, joint) {
             ("policy-nan", None) => Injected::PolicyNan,
             ("drop-peers", None) => Injected::DropPeers,
+            ("absurd-state", None) => Injected::AbsurdState,
             ("motor", Some(joint)) => Injected::Hardware(InjectedFault::Motor { joint }),
             ("emcy", Some(joint)) => Injected::Hardware(InjectedFault::Emcy { joint }),
             ("heartbeat", Some(joint)) => {
@@ -436,6 +445,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let mut start_us: Option<u64> = None;
     let mut pending = args.inject.clone();
     let mut drop_peers = false;
+    let mut absurd_until_s: Option<f64> = None;
     let mut deadline_misses = 0u64;
     let mut report = Report::default();
     let lockstep = args.hal == HalKind::Sim && !args.realtime;
@@ -476,6 +486,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
                     }
                     Injected::PolicyNan => onboard.inject_policy_nan(),
                     Injected::DropPeers => drop_peers = true,
+                    Injected::AbsurdState => absurd_until_s = Some(due.at_s + ABSURD_STATE_S),
                 }
             } else {
                 k += 1;
@@ -515,7 +526,19 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             &mut record,
         );
         let output = out.output;
-        let sealed = sealer.seal_into(out.message, &mut frame);
+        let absurd;
+        let message = if absurd_until_s.is_some_and(|until| elapsed_s < until) {
+            // A drill only: the copy costs an allocation per tick while it lasts.
+            let mut tampered = out.message.clone();
+            if let Body::Unit(tick) = &mut tampered.body {
+                tick.state.base_pose.x_m = ABSURD_X_M;
+            }
+            absurd = tampered;
+            &absurd
+        } else {
+            out.message
+        };
+        let sealed = sealer.seal_into(message, &mut frame);
         inbox.validator.set_mission(onboard.mission());
         if let Hardware::Sim(hw) = &mut hardware {
             hw.set_phase(record.phase);
