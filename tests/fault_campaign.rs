@@ -11,8 +11,9 @@
 
 mod common;
 
+use common::Daemon;
+
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use moonhaul_coord::clamp::HoldReason;
@@ -27,59 +28,6 @@ use zenoh::qos::CongestionControl;
 const PERIOD_US: u64 = 20_000;
 /// The flood: small frames per second, over every team key together.
 const FLOOD_HZ: f64 = 10_000.0;
-
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Daemon {
-    fn spawn(dir: &Path, keys: &Path, i: usize, net: &[String]) -> Daemon {
-        let log = std::fs::File::create(dir.join(format!("unit-{i}.log"))).unwrap();
-        let pose = if i == 0 {
-            "0,-0.8,0"
-        } else {
-            "0,0.8,3.141592653589793"
-        };
-        let child = Command::new(env!("CARGO_BIN_EXE_moonhaul-unit"))
-            .arg("--config")
-            .arg(moonhaul_core::config::repo_file("configs/unit.toml"))
-            .args(["--hal", "mock", "--unit-index", &i.to_string()])
-            .args(["--controller", "scripted"])
-            .arg(format!("--start-pose={pose}"))
-            .arg("--keys")
-            .arg(keys)
-            .arg("--log")
-            .arg(dir.join(format!("unit-{i}.mcap")))
-            .args(net)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .unwrap();
-        Daemon(child)
-    }
-
-    /// SIGTERM, then the exit status within `timeout` (panics past it: a frozen daemon).
-    fn terminate(&mut self, timeout: Duration) -> std::process::ExitStatus {
-        Command::new("kill")
-            .args(["-TERM", &self.0.id().to_string()])
-            .status()
-            .unwrap();
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(status) = self.0.try_wait().unwrap() {
-                return status;
-            }
-            assert!(Instant::now() < deadline, "a daemon ignored SIGTERM");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
 
 fn console(cmd: &str, keys: &Path, port: u16) -> String {
     let out = common::moonhaul(&[
@@ -261,22 +209,21 @@ fn campaign(seconds: f64) {
     let ports = [0, 1].map(|_| network::free_loopback_port().unwrap());
     let endpoints: Vec<String> = ports.iter().map(|p| format!("tcp/127.0.0.1:{p}")).collect();
     let mut team = [
-        Daemon::spawn(
+        Daemon::unit(
             dir.path(),
             &keys_path,
             0,
-            &["--listen".into(), endpoints[0].clone()],
+            "mock",
+            &["--listen", &endpoints[0]],
+            &[],
         ),
-        Daemon::spawn(
+        Daemon::unit(
             dir.path(),
             &keys_path,
             1,
-            &[
-                "--listen".into(),
-                endpoints[1].clone(),
-                "--connect".into(),
-                endpoints[0].clone(),
-            ],
+            "mock",
+            &["--listen", &endpoints[1], "--connect", &endpoints[0]],
+            &[],
         ),
     ];
     await_status(&keys_path, ports[0], Duration::from_secs(30), |s| {
@@ -316,7 +263,9 @@ fn campaign(seconds: f64) {
     // A moment after the flood, the team must still be in its mission, unstopped.
     std::thread::sleep(Duration::from_millis(500));
     for d in &mut team {
-        assert!(d.terminate(Duration::from_secs(15)).success());
+        // A frozen daemon would ignore it.
+        d.signal("-TERM");
+        assert!(d.wait(Duration::from_secs(15)).success());
     }
     assert!(
         !outsiders_connected,

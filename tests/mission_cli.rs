@@ -6,8 +6,10 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use common::{keys, unit_bin, Daemon};
+
+use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use moonhaul_coord::clamp::{anchor_command, hold_command, interpolate_command};
@@ -20,83 +22,14 @@ use moonhaul_deploy::record::TickRecord;
 
 const PERIOD_US: u64 = 20_000;
 
-fn unit_bin() -> &'static str {
-    env!("CARGO_BIN_EXE_moonhaul-unit")
-}
-
-fn keys(dir: &Path) -> PathBuf {
-    let path = dir.join("keys.toml");
-    common::stdout(&common::generate_keys(&path, "2", &[]));
-    path
-}
-
 fn free_port() -> u16 {
     moonhaul_deploy::network::free_loopback_port().unwrap()
-}
-
-/// A daemon process, killed if the test fails before it ends it.
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Daemon {
-    fn signal(&self, sig: &str) {
-        Command::new("kill")
-            .args([sig, &self.0.id().to_string()])
-            .status()
-            .unwrap();
-    }
-
-    fn wait(&mut self, timeout: Duration) -> std::process::ExitStatus {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(status) = self.0.try_wait().unwrap() {
-                return status;
-            }
-            assert!(Instant::now() < deadline, "daemon did not exit");
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-fn unit(dir: &Path, keys: &Path, i: usize, hal: &str, net: &[&str], extra: &[&str]) -> Daemon {
-    let log = std::fs::File::create(dir.join(format!("unit-{i}.log"))).unwrap();
-    let pose = if i == 0 {
-        "0,-0.8,0"
-    } else {
-        "0,0.8,3.141592653589793"
-    };
-    let child = Command::new(unit_bin())
-        .arg("--config")
-        .arg(moonhaul_core::config::repo_file("configs/unit.toml"))
-        .args(["--hal", hal, "--unit-index", &i.to_string()])
-        // The scripted controller: these tests are about processes, faults and logs, and it
-        // carries the team into transport for certain (the bundled policies are placeholders).
-        .args(["--controller", "scripted"])
-        .arg(format!("--start-pose={pose}"))
-        .arg("--keys")
-        .arg(keys)
-        .arg("--log")
-        .arg(dir.join(format!("unit-{i}.mcap")))
-        .args(net)
-        .args(extra)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .unwrap();
-    Daemon(child)
 }
 
 /// A two-unit mock team on `port`: unit 0 listens, unit 1 connects.
 fn mock_team(dir: &Path, keys: &Path, port: u16) -> [Daemon; 2] {
     let listen = format!("tcp/127.0.0.1:{port}");
-    let u0 = unit(
+    let u0 = Daemon::unit(
         dir,
         keys,
         0,
@@ -104,7 +37,7 @@ fn mock_team(dir: &Path, keys: &Path, port: u16) -> [Daemon; 2] {
         &["--listen", &listen, "--connect", &listen],
         &[],
     );
-    let u1 = unit(
+    let u1 = Daemon::unit(
         dir,
         keys,
         1,
@@ -240,7 +173,7 @@ fn a_key_holder_sending_absurd_states_is_its_own_fault_and_the_team_starts_again
     let keys = keys(dir.path());
     let port = free_port();
     let listen = format!("tcp/127.0.0.1:{port}");
-    let mut u0 = unit(
+    let mut u0 = Daemon::unit(
         dir.path(),
         &keys,
         0,
@@ -249,7 +182,7 @@ fn a_key_holder_sending_absurd_states_is_its_own_fault_and_the_team_starts_again
         &[],
     );
     let inject = format!("--inject=absurd-state@{ABSURD_AT_S}");
-    let mut u1 = unit(
+    let mut u1 = Daemon::unit(
         dir.path(),
         &keys,
         1,
@@ -401,7 +334,7 @@ fn drive_faults_on_the_emulated_can_bus_latch_a_stop() {
         let listen = format!("tcp/127.0.0.1:{port}");
         let sub = dir.path().join(format!("case{k}"));
         std::fs::create_dir_all(&sub).unwrap();
-        let mut d = unit(
+        let mut d = Daemon::unit(
             &sub,
             &keys,
             0,

@@ -5,8 +5,10 @@
 
 mod common;
 
+use common::{run_bounded, wait_bounded};
+
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use moonhaul_core::config::repo_file;
@@ -23,27 +25,6 @@ fn mission_sim(out: &Path, extra: &[&str]) -> Command {
         .current_dir(repo_file(""))
         .stdin(Stdio::null());
     cmd
-}
-
-fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
-    let deadline = Instant::now() + timeout;
-    while child.try_wait().unwrap().is_none() {
-        if Instant::now() >= deadline {
-            let _ = child.kill();
-            panic!("mission sim did not exit within {timeout:?}");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    child.wait_with_output().unwrap()
-}
-
-fn run_bounded(cmd: &mut Command, timeout: Duration) -> Output {
-    let child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_bounded(child, timeout)
 }
 
 fn text(bytes: &[u8]) -> String {

@@ -5,8 +5,10 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use common::{keys, run_bounded, unit_bin, wait_bounded};
+
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use moonhaul_core::config::repo_file;
@@ -14,16 +16,6 @@ use moonhaul_deploy::mission_log::read_unit_log;
 
 /// The magic an MCAP file starts and, once finished (summary and footer written), ends with.
 const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
-
-fn unit_bin() -> &'static str {
-    env!("CARGO_BIN_EXE_moonhaul-unit")
-}
-
-fn keys(dir: &Path) -> PathBuf {
-    let path = dir.join("keys.toml");
-    common::stdout(&common::generate_keys(&path, "2", &[]));
-    path
-}
 
 /// A unit on mock drives whose peers never come (its endpoint has nobody behind it).
 fn mock_unit(keys: &Path, extra: &[&str]) -> Command {
@@ -38,28 +30,6 @@ fn mock_unit(keys: &Path, extra: &[&str]) -> Command {
         .args(extra)
         .stdin(Stdio::null());
     cmd
-}
-
-/// Runs `cmd` to its end, at most `timeout`.
-fn run_bounded(cmd: &mut Command, timeout: Duration) -> Output {
-    let child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_bounded(child, timeout)
-}
-
-fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
-    let deadline = Instant::now() + timeout;
-    while child.try_wait().unwrap().is_none() {
-        if Instant::now() >= deadline {
-            let _ = child.kill();
-            panic!("moonhaul-unit did not exit within {timeout:?}");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().unwrap()
 }
 
 fn text(bytes: &[u8]) -> String {

@@ -2,7 +2,9 @@
 //! output. Each test file includes this with `mod common;` and uses what it needs.
 #![allow(dead_code)]
 
-use std::process::{Command, Output};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 /// Runs the `moonhaul` binary of this build with `args`.
 pub fn moonhaul(args: &[&str]) -> Output {
@@ -54,4 +56,107 @@ pub fn fails_naming(args: &[&str], needle: &str) -> String {
         "{args:?}: no {needle:?} in {stderr}"
     );
     stderr
+}
+
+/// The `moonhaul-unit` binary of this build.
+pub fn unit_bin() -> &'static str {
+    env!("CARGO_BIN_EXE_moonhaul-unit")
+}
+
+/// A fresh key file for a two-unit team `moonhaul` in `dir`.
+pub fn keys(dir: &Path) -> PathBuf {
+    let path = dir.join("keys.toml");
+    stdout(&generate_keys(&path, "2", &[]));
+    path
+}
+
+/// Waits for `child` to end, at most `timeout` (then kills it and fails the test).
+pub fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
+    let deadline = Instant::now() + timeout;
+    while child.try_wait().unwrap().is_none() {
+        if Instant::now() >= deadline {
+            let _ = child.kill();
+            panic!("the process did not exit within {timeout:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Runs `cmd` to its end, at most `timeout`, capturing its output.
+pub fn run_bounded(cmd: &mut Command, timeout: Duration) -> Output {
+    let child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_bounded(child, timeout)
+}
+
+/// A daemon process, killed if the test fails before it ends it.
+pub struct Daemon(pub Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Daemon {
+    /// Unit `i` of a two-unit team on backend `hal` with the scripted controller (these tests
+    /// are about processes, faults and logs, and it carries the team into transport for
+    /// certain; the bundled policies are placeholders), its log `dir/unit-<i>.mcap` and its
+    /// stderr in `dir/unit-<i>.log`; `net` and `extra` are more arguments.
+    pub fn unit(
+        dir: &Path,
+        keys: &Path,
+        i: usize,
+        hal: &str,
+        net: &[&str],
+        extra: &[&str],
+    ) -> Daemon {
+        let log = std::fs::File::create(dir.join(format!("unit-{i}.log"))).unwrap();
+        let pose = if i == 0 {
+            "0,-0.8,0"
+        } else {
+            "0,0.8,3.141592653589793"
+        };
+        let child = Command::new(unit_bin())
+            .arg("--config")
+            .arg(moonhaul_core::config::repo_file("configs/unit.toml"))
+            .args(["--hal", hal, "--unit-index", &i.to_string()])
+            .args(["--controller", "scripted"])
+            .arg(format!("--start-pose={pose}"))
+            .arg("--keys")
+            .arg(keys)
+            .arg("--log")
+            .arg(dir.join(format!("unit-{i}.mcap")))
+            .args(net)
+            .args(extra)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap();
+        Daemon(child)
+    }
+
+    pub fn signal(&self, sig: &str) {
+        Command::new("kill")
+            .args([sig, &self.0.id().to_string()])
+            .status()
+            .unwrap();
+    }
+
+    pub fn wait(&mut self, timeout: Duration) -> std::process::ExitStatus {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(status) = self.0.try_wait().unwrap() {
+                return status;
+            }
+            assert!(Instant::now() < deadline, "daemon did not exit");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
 }
