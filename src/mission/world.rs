@@ -7,8 +7,10 @@
 //! is re-sent every [`RESEND`] until it is, so a unit that starts late or misses a frame
 //! catches up. A unit that answered once and then stays silent for [`UNIT_TIMEOUT`] is taken
 //! as gone: its drives quick-stop (wheels to zero, arm holding its position), as drives do when
-//! their master's SYNC and heartbeat stop. **Real time**: steps on the wall clock with each
-//! unit's newest command.
+//! their master's SYNC and heartbeat stop. Until a unit leaves Idle (the operator's start),
+//! lockstep steps no faster than the wall clock either: the start comes in wall time, and an
+//! idle lockstep world running tens of times faster would spend `--max-seconds` before it.
+//! **Real time**: steps on the wall clock with each unit's newest command.
 //!
 //! The world ends itself: [`SETTLE_S`] after every live unit reported Idle again after the
 //! mission began (the mission ended, completed or stopped), when no unit is left, or at
@@ -221,14 +223,17 @@ pub async fn run(args: WorldArgs) -> Result<()> {
                 last_send = Some(Instant::now());
             }
             let answered = |l: &UnitLink| l.gone || l.command.is_some_and(|c| c.tick >= tick);
-            if !args.realtime && links.iter().all(answered) {
+            // Until the team starts, the clock runs no faster than the wall even in lockstep:
+            // the operator starts a mission in wall time, and a lockstep world runs tens of
+            // times faster than that, so its idle prelude would eat `--max-seconds` before the
+            // start arrives.
+            let paced = args.realtime || !began;
+            let due = wall_start + Duration::from_secs_f64((tick + 1) as f64 * period_s);
+            if !args.realtime && links.iter().all(answered) && (!paced || Instant::now() >= due) {
                 break;
             }
-            if args.realtime {
-                let due = wall_start + Duration::from_secs_f64((tick + 1) as f64 * period_s);
-                if Instant::now() >= due {
-                    break;
-                }
+            if args.realtime && Instant::now() >= due {
+                break;
             }
             // Lockstep time-outs: a unit that went silent is gone.
             for (i, link) in links.iter_mut().enumerate() {
@@ -247,9 +252,12 @@ pub async fn run(args: WorldArgs) -> Result<()> {
             if links.iter().all(|l| l.gone) {
                 break 'mission "every unit is gone".into();
             }
-            let wait = tokio::time::sleep(
-                RESEND.saturating_sub(last_send.map_or(Duration::ZERO, |t| t.elapsed())),
-            );
+            let mut wait_for =
+                RESEND.saturating_sub(last_send.map_or(Duration::ZERO, |t| t.elapsed()));
+            if paced {
+                wait_for = wait_for.min(due.saturating_duration_since(Instant::now()));
+            }
+            let wait = tokio::time::sleep(wait_for);
             tokio::select! {
                 biased;
                 why = signals.recv() => break 'mission why.into(),
