@@ -367,6 +367,16 @@ pub async fn open(
     set(&mut config, "connect/exit_on_failure", "false")?;
     if let Some(zid) = &access.own.zid {
         set(&mut config, "id", &string(zid)?)?;
+        // Of two units (or a unit and the world) that learn of each other by gossip, only the
+        // one of greater id dials: with both dialling, zenoh closes the redundant link and at
+        // times both, and the pair is then left to a third peer's brokering, whose frames
+        // the receiver's access control refuses (they come from the broker's session, not the
+        // publisher's). Operator consoles keep dialling everyone; nobody dials them.
+        set(
+            &mut config,
+            "scouting/gossip/autoconnect_strategy",
+            "\"greater-zid\"",
+        )?;
     }
     set(
         &mut config,
