@@ -5,13 +5,6 @@ by the functions on its stack (first match wins); samples of env construction ar
 
 Usage (from the project root, after `cargo build --release -p moonhaul`; needs `perf`):
     bench/step_profile.py [--envs 8] [--steps 500] [--binary target/release/moonhaul] [--plan FILE]
-
-The training workload instead (a whole PPO iteration of a phase task: the env's physics and
-its obs & reward, act, update), from the iteration bench's binary
-(`cargo xtask cargo bench -p moonhaul-learn --bench iteration --no-run` names it):
-    bench/step_profile.py --iteration --command "BENCH_BINARY --worlds 512 --iterations 2"
-Its samples are sorted as the iteration bench splits the time, with the physics part split into
-the solver categories; env and policy construction are set aside.
 """
 
 from __future__ import annotations
@@ -19,7 +12,6 @@ from __future__ import annotations
 import argparse
 import collections
 import os
-import shlex
 import subprocess
 import sys
 import tempfile
@@ -39,21 +31,6 @@ CATEGORIES = [
     ("rayon hand-off and scheduling", ["rayon", "futex", "schedule", "finish_task_switch", "_raw_spin"]),
 ]
 
-# The training iteration: the update and the policy's act first (their stacks never hold the
-# simulator), then the simulator's categories, then what else the env step does.
-# Only construction is set aside: resets during the rollout are the iteration's own work.
-ITERATION_SETUP = ["SceneModel::new", "BatchEnv::new", "world::<impl moonhaul_sim::scene::Env>::new",
-                   "make_env", "ActorCritic::new", "Runner::new"]
-ITERATION_CATEGORIES = [
-    ("PPO update (returns, advantages, gradient steps)", ["Ppo::update"]),
-    ("act (actor and critic forward, sampling, normalizers, storage)",
-     ["Ppo::act", "ActorCritic::act", "Storage::", "EmpiricalNormalizer"]),
-] + CATEGORIES[:-1] + [
-    ("obs & reward (outcomes, rewards, resets, observations, tensor conversions)",
-     ["phase_env", "moonhaul_sim::task", "moonhaul_learn::env", "reward::"]),
-    CATEGORIES[-1],
-]
-
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -61,22 +38,12 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--binary", default="target/release/moonhaul")
     p.add_argument("--plan", default="bench/mujoco/plan.json")
-    p.add_argument("--iteration", action="store_true",
-                   help="sort the samples as a training iteration (with --command)")
-    p.add_argument("--command", help="profile this command line instead of `sim bench`")
-    p.add_argument("--frequency", type=int, default=1999,
-                   help="samples per second per thread (lower it for long commands: DWARF stacks are 32 KiB each)")
     a = p.parse_args()
-    if a.iteration and not a.command:
-        p.error("--iteration profiles the iteration bench: give its binary with --command")
-    command = shlex.split(a.command) if a.command else [
-        a.binary, "sim", "bench", "--json", "--envs", str(a.envs), "--threads", "1",
-        "--steps", str(a.steps), "--plan", a.plan]
-    setup_keys, categories = (ITERATION_SETUP, ITERATION_CATEGORIES) if a.iteration else (SETUP, CATEGORIES)
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "perf.data")
-        subprocess.run(["perf", "record", "-q", "-F", str(a.frequency), "--call-graph", "dwarf,32768",
-                        "-o", data] + command,
+        subprocess.run(["perf", "record", "-q", "-F", "1999", "--call-graph", "dwarf,32768", "-o", data,
+                        a.binary, "sim", "bench", "--json", "--envs", str(a.envs), "--threads", "1",
+                        "--steps", str(a.steps), "--plan", a.plan],
                        check=True, stdout=subprocess.DEVNULL)
         script = subprocess.run(["perf", "script", "-i", data], check=True, capture_output=True, text=True).stdout
     counts: collections.Counter[str] = collections.Counter()
@@ -85,17 +52,17 @@ def main() -> None:
         stack = " | ".join(line.strip() for line in sample.strip().split("\n")[1:])
         if not stack:
             continue
-        if any(k in stack for k in setup_keys):
+        if any(k in stack for k in SETUP):
             setup += 1
             continue
-        name = next((n for n, keys in categories if any(k in stack for k in keys)), "other")
+        name = next((n for n, keys in CATEGORIES if any(k in stack for k in keys)), "other")
         counts[name] += 1
     total = sum(counts.values())
     if total == 0:
         sys.exit("step_profile: no samples of the step")
-    what = " ".join(command) if a.command else f"{a.envs} envs x {a.steps} control steps on one thread"
-    print(f"{total} samples ({setup} more of construction set aside), {what}:")
-    for name, _ in categories + [("other", [])]:
+    print(f"{total} samples of the batched step ({setup} more of env construction set aside), "
+          f"{a.envs} envs x {a.steps} control steps on one thread:")
+    for name, _ in CATEGORIES + [("other", [])]:
         print(f"  {100 * counts[name] / total:5.1f} %  {name}")
 
 
