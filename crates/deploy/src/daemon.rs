@@ -514,7 +514,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
             }
             onboard.latch_fault(FaultKind::Drive, "drive fault");
         }
-        for (_, queue) in &links.peers {
+        for queue in &links.peers {
             drain(queue, &mut inbox, &mut onboard, now_us, drop_peers);
         }
         drain(&links.operator, &mut inbox, &mut onboard, now_us, false);
@@ -652,6 +652,26 @@ struct WorldWatch {
     runtime_by: Option<tokio::time::Instant>,
 }
 
+impl WorldWatch {
+    /// Why the world's link counts as lost once its deadline passed (formatted only then: the
+    /// wait runs every tick).
+    fn lost(&self) -> String {
+        match self.last_frame {
+            Some(_) => format!(
+                "the simulated world fell silent: no frame on {} for {} s",
+                self.key,
+                WORLD_SILENCE.as_secs()
+            ),
+            None => format!(
+                "no reading from the simulated world on {} within {} s of start-up \
+                 (--world-wait-s): is `moonhaul mission world` running and reachable at this \
+                 unit's --connect endpoints?",
+                self.key, self.first_wait_s
+            ),
+        }
+    }
+}
+
 /// The next tick: the interval's, or the world's next reading (the newest one waiting), within
 /// the bounds of `world`.
 async fn next_tick(
@@ -665,31 +685,15 @@ async fn next_tick(
         interval.tick().await;
         return Wake::Tick(wall_us());
     };
-    let (deadline, lost) = match world.last_frame {
-        Some(t) => (
-            t + WORLD_SILENCE,
-            format!(
-                "the simulated world fell silent: no frame on {} for {} s",
-                world.key,
-                WORLD_SILENCE.as_secs()
-            ),
-        ),
-        None => (
-            world.first_by,
-            format!(
-                "no reading from the simulated world on {} within {} s of start-up \
-                 (--world-wait-s): is `moonhaul mission world` running and reachable at this \
-                 unit's --connect endpoints?",
-                world.key, world.first_wait_s
-            ),
-        ),
-    };
+    let deadline = world
+        .last_frame
+        .map_or(world.first_by, |t| t + WORLD_SILENCE);
     let runtime_by = world.runtime_by.filter(|_| world.last_frame.is_none());
     tokio::select! {
         biased;
         heard = tokio::time::timeout_at(deadline, ready.notified()) => {
             if heard.is_err() {
-                return Wake::Stop(Stop::WorldLost(lost));
+                return Wake::Stop(Stop::WorldLost(world.lost()));
             }
         }
         _ = tokio::time::sleep_until(runtime_by.unwrap_or(deadline)), if runtime_by.is_some() => {
@@ -735,7 +739,7 @@ const LAST_COMMAND_WAIT: Duration = Duration::from_millis(200);
 /// another's frames), one for the operator, one for the world's readings with `--hal sim`, and
 /// the outboxes of its own state and drive commands. Its own publications never reach it.
 struct Links {
-    peers: Vec<(usize, Arc<FrameQueue>)>,
+    peers: Vec<Arc<FrameQueue>>,
     peer_ready: Arc<Notify>,
     operator: Arc<FrameQueue>,
     sensed: Option<(Arc<FrameQueue>, Arc<Notify>)>,
@@ -760,7 +764,7 @@ impl Links {
         for peer in (0..team_size).filter(|&j| j != unit) {
             let queue = FrameQueue::new(PEER_QUEUE_FRAMES, Arc::clone(&peer_ready));
             subscribers.push(network::subscribe(session, keys.unit_state(peer), &queue).await?);
-            peers.push((peer, queue));
+            peers.push(queue);
         }
         let operator = FrameQueue::new(OPERATOR_QUEUE_FRAMES, Arc::new(Notify::new()));
         subscribers.push(network::subscribe(session, keys.operator(), &operator).await?);
@@ -789,7 +793,7 @@ impl Links {
     /// Every receive queue's counts, summed.
     fn received(&self) -> QueueCounts {
         let mut total = self.operator.counts();
-        for (_, q) in &self.peers {
+        for q in &self.peers {
             total += q.counts();
         }
         if let Some((q, _)) = &self.sensed {
@@ -940,7 +944,7 @@ async fn wait_for_peers(
     let wanted = now_us.saturating_sub(team.control_period_us);
     let deadline = tokio::time::Instant::now() + PEER_WAIT;
     loop {
-        for (_, queue) in &links.peers {
+        for queue in &links.peers {
             queue.drain(|sample| take(sample, inbox, onboard, now_us));
         }
         if onboard.peers_heard_since(wanted) {

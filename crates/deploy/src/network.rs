@@ -573,14 +573,19 @@ impl<T> FrameQueue<T> {
     }
 
     /// Hands every waiting frame to `take`, oldest first (at most the capacity: the work is
-    /// bounded whatever the network does).
+    /// bounded whatever the network does). The lock is held only to take each frame out, never
+    /// while `take` runs, and nothing is allocated: this runs every control tick.
     pub fn drain(&self, mut take: impl FnMut(&T)) {
-        let waiting = {
-            let mut frames = self.frames.lock().unwrap_or_else(|p| p.into_inner());
-            std::mem::replace(&mut *frames, VecDeque::with_capacity(self.capacity))
-        };
-        for frame in &waiting {
-            take(frame);
+        for _ in 0..self.capacity {
+            let frame = self
+                .frames
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .pop_front();
+            match frame {
+                Some(frame) => take(&frame),
+                None => return,
+            }
         }
     }
 
