@@ -29,7 +29,6 @@ use moonhaul_coord::message::{
     PROTOCOL_VERSION,
 };
 use moonhaul_coord::Validator;
-use moonhaul_core::state::Phase;
 use moonhaul_deploy::cli_support::wall_us;
 use moonhaul_deploy::network::{self, Access, Keys, NetworkSettings, Role};
 
@@ -313,6 +312,11 @@ fn report(console: &Console, what: &str, answers: &[Answer]) -> Result<()> {
     for (i, a) in answers.iter().enumerate() {
         println!("  unit {i}: {a}");
     }
+    all_acknowledged(what, answers)
+}
+
+/// Fails, naming each unit that did not acknowledge `what` and its answer.
+fn all_acknowledged(what: &str, answers: &[Answer]) -> Result<()> {
     let failed: Vec<String> = answers
         .iter()
         .enumerate()
@@ -335,30 +339,15 @@ pub fn new_mission() -> u32 {
     (wall_us() / 1_000_000).min(u64::from(u32::MAX)) as u32
 }
 
-/// Sends a start and waits until every unit left Idle (or `timeout`); returns the mission.
+/// Sends a start of a new mission and waits (at most `timeout`) until every unit answered it;
+/// fails, naming each unit's answer, unless every unit acknowledged. Returns the mission.
 pub async fn start(console: &mut Console, timeout: Duration) -> Result<u32> {
     let mission = new_mission();
-    let deadline = Instant::now() + timeout;
-    loop {
-        console.send(OperatorCommand::Start { mission }).await?;
-        console.listen(Duration::from_millis(200)).await;
-        let started = console.all_heard()
-            && console
-                .units
-                .values()
-                .all(|u| u.tick.phase != Phase::Idle || u.tick.announce.propose.is_some());
-        if started {
-            return Ok(mission);
-        }
-        if Instant::now() >= deadline {
-            bail!(
-                "mission {mission}: the team did not start within {:.0} s (heard {} of {} units)",
-                timeout.as_secs_f64(),
-                console.units.len(),
-                console.team_size()
-            );
-        }
-    }
+    let answers = console
+        .command(OperatorCommand::Start { mission }, timeout)
+        .await?;
+    all_acknowledged(&format!("start of mission {mission}"), &answers)?;
+    Ok(mission)
 }
 
 /// `moonhaul mission start|stop|status`.
