@@ -32,10 +32,6 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # glibc's tunables for what `retain_freed_memory` in crates/learn/src/ppo.rs sets with mallopt.
 GLIBC_RETAIN = {"MALLOC_MMAP_THRESHOLD_": str(32 << 20), "MALLOC_TRIM_THRESHOLD_": str(1 << 30)}
-# libtorch's kernel set that `cpu_kernels::prefer_avx2` in crates/learn/src/cpu_kernels.rs picks
-# (a user's own ATEN_CPU_CAPABILITY reaches both sides through the environment instead).
-KERNELS = {} if "ATEN_CPU_CAPABILITY" in os.environ else {"ATEN_CPU_CAPABILITY": "avx2"}
-SAME_SETTINGS = {**GLIBC_RETAIN, **KERNELS}
 
 
 def json_lines(cmd: list[str], env: dict | None = None) -> list[dict]:
@@ -97,19 +93,18 @@ def main() -> None:
         if a.only in (None, "ppo"):
             ours = json_lines(ppo_a)[-1]
             ref = json_lines(ppo_b)[-1]
-            # moonhaul keeps freed heap in the process (mallopt in Ppo::new) and picks libtorch's
-            # AVX2 kernels; rsl_rl given the same settings through the environment is the
-            # like-for-like yardstick.
-            tuned = json_lines(ppo_b, env=SAME_SETTINGS)[-1]
+            # moonhaul keeps freed heap in the process (mallopt in Ppo::new); rsl_rl given the
+            # same glibc settings through the environment is the like-for-like yardstick.
+            tuned = json_lines(ppo_b, env=GLIBC_RETAIN)[-1]
             print(f"round {k} ppo: moonhaul update {ours['update_samples_per_s']:.0f} samples/s, "
                   f"act {ours['act_ms_per_step']:.2f} ms/step | rsl_rl update {ref['update_samples_per_s']:.0f}, "
-                  f"act {ref['act_ms_per_step']:.2f} | rsl_rl with moonhaul's malloc and kernel settings "
+                  f"act {ref['act_ms_per_step']:.2f} | rsl_rl with moonhaul's malloc settings "
                   f"update {tuned['update_samples_per_s']:.0f}, act {tuned['act_ms_per_step']:.2f} | "
                   + keep("update/rsl_rl", ours["update_samples_per_s"] / ref["update_samples_per_s"]) + ", "
                   + keep("act speed/rsl_rl", ref["act_ms_per_step"] / ours["act_ms_per_step"]) + ", "
-                  + keep("update/rsl_rl same settings", ours["update_samples_per_s"] / tuned["update_samples_per_s"])
+                  + keep("update/rsl_rl same malloc", ours["update_samples_per_s"] / tuned["update_samples_per_s"])
                   + ", "
-                  + keep("act speed/rsl_rl same settings", tuned["act_ms_per_step"] / ours["act_ms_per_step"]),
+                  + keep("act speed/rsl_rl same malloc", tuned["act_ms_per_step"] / ours["act_ms_per_step"]),
                   flush=True)
     print("medians over the rounds:")
     for name, values in ratios.items():

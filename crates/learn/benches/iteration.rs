@@ -132,7 +132,6 @@ fn run(args: &Args) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
-    moonhaul_learn::cpu_kernels::prefer_avx2();
     match parse().and_then(|args| run(&args)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -84,7 +84,6 @@ fn parse_args() -> Args {
 }
 
 fn main() {
-    moonhaul_learn::cpu_kernels::prefer_avx2();
     let a = parse_args();
     let config = TrainConfig::load(&a.config).expect("training config");
     tch::set_num_threads(a.threads);

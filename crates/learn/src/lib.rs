@@ -15,7 +15,6 @@ pub mod actor_critic;
 pub mod adam;
 pub mod checkpoint;
 pub mod config;
-pub mod cpu_kernels;
 pub mod env;
 pub mod error;
 pub mod export;

@@ -91,8 +91,6 @@ struct Args {
 }
 
 fn main() -> Result<()> {
-    // First: it sets an environment variable libtorch reads once (see the module).
-    let kernels = moonhaul_learn::cpu_kernels::prefer_avx2();
     let args = Args::parse();
     let mut config = TrainConfig::load(&args.config)
         .with_context(|| format!("loading training config {}", args.config.display()))?;
@@ -149,9 +147,6 @@ fn main() -> Result<()> {
         });
     }
 
-    if let Some(kernels) = kernels {
-        eprintln!("libtorch CPU kernels: {kernels} (ATEN_CPU_CAPABILITY)");
-    }
     let bar = ProgressBar::new(config.run.iterations as u64);
     bar.set_style(
         ProgressStyle::with_template(
