@@ -119,6 +119,69 @@ pub trait VecEnv {
     fn take_physics_s(&mut self) -> Option<f64> {
         None
     }
+
+    /// What the action pipeline did since the last call, for envs that step through it
+    /// (`None`: no pipeline, as Pendulum).
+    fn take_pipeline_stats(&mut self) -> Option<PipelineStats> {
+        None
+    }
+}
+
+/// What the onboard action pipeline (increment → clamp → drives) did over some unit ticks: the
+/// clamp figures the learned mission is judged by (mean t_max, holds) and the grasp force that
+/// shows whether a policy lifts by squeezing. Sums, so batches and steps add up.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PipelineStats {
+    /// Unit ticks counted (one per unit per world step).
+    pub unit_ticks: u64,
+    /// Sum of the issued t_max (0 on a hold).
+    pub t_max_sum: f64,
+    /// Ticks on which the clamp issued a hold (no admissible step, or a hold requested).
+    pub holds: u64,
+    /// Sum over unit ticks of the grasp force magnitude, N.
+    pub grasp_force_sum_n: f64,
+    /// Largest grasp force magnitude seen, N.
+    pub grasp_force_peak_n: f64,
+}
+
+impl PipelineStats {
+    /// Adds one unit tick.
+    pub fn record(&mut self, t_max: f64, hold: bool, grasp_force_n: f64) {
+        self.unit_ticks += 1;
+        self.t_max_sum += t_max;
+        self.holds += u64::from(hold);
+        self.grasp_force_sum_n += grasp_force_n;
+        self.grasp_force_peak_n = self.grasp_force_peak_n.max(grasp_force_n);
+    }
+
+    pub fn merge(&mut self, other: &PipelineStats) {
+        self.unit_ticks += other.unit_ticks;
+        self.t_max_sum += other.t_max_sum;
+        self.holds += other.holds;
+        self.grasp_force_sum_n += other.grasp_force_sum_n;
+        self.grasp_force_peak_n = self.grasp_force_peak_n.max(other.grasp_force_peak_n);
+    }
+
+    fn per_tick(&self, sum: f64) -> Option<f64> {
+        (self.unit_ticks > 0).then(|| sum / self.unit_ticks as f64)
+    }
+
+    pub fn mean_t_max(&self) -> Option<f64> {
+        self.per_tick(self.t_max_sum)
+    }
+
+    /// Fraction of unit ticks that issued a hold.
+    pub fn hold_fraction(&self) -> Option<f64> {
+        self.per_tick(self.holds as f64)
+    }
+
+    pub fn mean_grasp_force_n(&self) -> Option<f64> {
+        self.per_tick(self.grasp_force_sum_n)
+    }
+
+    pub fn peak_grasp_force_n(&self) -> Option<f64> {
+        (self.unit_ticks > 0).then_some(self.grasp_force_peak_n)
+    }
 }
 
 /// Checks a flat batch's length: shared by every [`VecEnv`] implementation.

@@ -10,7 +10,8 @@ use crate::runner::IterationStats;
 use crate::LearnError;
 
 pub const HEADER: &str = "iteration,env_steps,mean_return,mean_episode_length,eval_return,\
-value_loss,surrogate_loss,entropy,mean_std,kl,lr,steps_per_s";
+value_loss,surrogate_loss,entropy,mean_std,kl,lr,steps_per_s,mean_t_max,hold_fraction,\
+mean_grasp_force_n,peak_grasp_force_n";
 
 /// One iteration's figures; `None` is an empty CSV cell.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -28,6 +29,13 @@ pub struct MetricsRow {
     pub kl: f64,
     pub lr: f64,
     pub steps_per_s: f64,
+    /// The action pipeline over the iteration's rollout (phase tasks; empty for Pendulum):
+    /// mean issued t_max per unit tick, fraction of unit ticks that held, and the mean and
+    /// peak grasp force magnitude per unit, N.
+    pub mean_t_max: Option<f64>,
+    pub hold_fraction: Option<f64>,
+    pub mean_grasp_force_n: Option<f64>,
+    pub peak_grasp_force_n: Option<f64>,
 }
 
 impl MetricsRow {
@@ -45,13 +53,17 @@ impl MetricsRow {
             kl: stats.update.kl,
             lr: stats.lr,
             steps_per_s: stats.steps_per_s,
+            mean_t_max: stats.pipeline.and_then(|p| p.mean_t_max()),
+            hold_fraction: stats.pipeline.and_then(|p| p.hold_fraction()),
+            mean_grasp_force_n: stats.pipeline.and_then(|p| p.mean_grasp_force_n()),
+            peak_grasp_force_n: stats.pipeline.and_then(|p| p.peak_grasp_force_n()),
         }
     }
 
     pub fn to_csv(&self) -> String {
         let opt = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             self.iteration,
             self.env_steps,
             opt(self.mean_return),
@@ -63,7 +75,11 @@ impl MetricsRow {
             self.mean_std,
             self.kl,
             self.lr,
-            self.steps_per_s
+            self.steps_per_s,
+            opt(self.mean_t_max),
+            opt(self.hold_fraction),
+            opt(self.mean_grasp_force_n),
+            opt(self.peak_grasp_force_n)
         )
     }
 
@@ -106,6 +122,10 @@ impl MetricsRow {
             kl: num(9)?,
             lr: num(10)?,
             steps_per_s: num(11)?,
+            mean_t_max: opt(12)?,
+            hold_fraction: opt(13)?,
+            mean_grasp_force_n: opt(14)?,
+            peak_grasp_force_n: opt(15)?,
         })
     }
 }
@@ -196,6 +216,10 @@ mod tests {
             kl: 0.008,
             lr: 1e-3,
             steps_per_s: 5000.0,
+            mean_t_max: (i > 2).then_some(0.875),
+            hold_fraction: (i > 2).then_some(0.03125),
+            mean_grasp_force_n: (i > 2).then_some(41.5),
+            peak_grasp_force_n: (i > 2).then_some(97.25),
         };
         let mut log = MetricsLog::open(&path, None).unwrap();
         for i in 1..=4 {
@@ -207,5 +231,9 @@ mod tests {
         let log = MetricsLog::open(&path, Some(2)).unwrap();
         assert_eq!(log.rows(), &[row(1, None), row(2, Some(-300.25))]);
         assert_eq!(std::fs::read_to_string(&path).unwrap().lines().count(), 3);
+        // The pipeline columns round-trip too (row 3 carries them).
+        let mut log = MetricsLog::open(&path, Some(2)).unwrap();
+        log.append(row(3, None)).unwrap();
+        assert_eq!(read_rows(&path).unwrap()[2], row(3, None));
     }
 }

@@ -22,7 +22,7 @@ use moonhaul_sim::task::{Episode, PhaseTask, StepOutcome, TaskConfig, CRITIC_OBS
 use moonhaul_sim::{BatchEnv, SimError};
 use rand_chacha::ChaCha8Rng;
 
-use crate::env::{check_len, VecEnv, VecStep};
+use crate::env::{check_len, PipelineStats, VecEnv, VecStep};
 use crate::reward::{force_variance, Goal, PayloadSample, RewardConfig};
 use crate::LearnError;
 
@@ -42,6 +42,8 @@ struct World {
     physics_cpu_s: f64,
     /// CPU time of the rest of this step (the task's half), s.
     task_cpu_s: f64,
+    /// What both units' pipelines did since [`VecEnv::take_pipeline_stats`].
+    pipeline: PipelineStats,
 }
 
 /// What the reward sees of the payload (privileged truth).
@@ -160,6 +162,7 @@ impl PhaseVecEnv {
                 },
                 physics_cpu_s: 0.0,
                 task_cpu_s: 0.0,
+                pipeline: PipelineStats::default(),
             };
             observe(&self.task, scene, env, state, &mut world)?;
             worlds.push(world);
@@ -282,6 +285,14 @@ impl VecEnv for PhaseVecEnv {
         Some(std::mem::take(&mut self.physics_s))
     }
 
+    fn take_pipeline_stats(&mut self) -> Option<PipelineStats> {
+        let mut total = PipelineStats::default();
+        for world in &mut self.worlds {
+            total.merge(&std::mem::take(&mut world.pipeline));
+        }
+        Some(total)
+    }
+
     fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
         let rows = self.num_envs();
         check_len("actions", actions, rows * UNIT_ACTION_DIM)?;
@@ -302,6 +313,15 @@ impl VecEnv for PhaseVecEnv {
                 env.step(scene, &commands);
                 env.state_into(scene, state);
                 let physics_end = Instant::now();
+                if let Some(reports) = world.episode.reports() {
+                    for (report, unit) in reports.iter().zip(&state.units) {
+                        world.pipeline.record(
+                            report.clamp.t_max,
+                            report.clamp.hold.is_some(),
+                            unit.grasp.force_n,
+                        );
+                    }
+                }
                 world.physics_cpu_s = (physics_end - start).as_secs_f64();
                 let result = task_step(task, reward, gamma, scene, env, state, world);
                 world.task_cpu_s = physics_end.elapsed().as_secs_f64();

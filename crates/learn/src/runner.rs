@@ -8,7 +8,7 @@ use std::time::Instant;
 use tch::{Kind, Tensor};
 
 use crate::config::TrainConfig;
-use crate::env::{VecEnv, VecStep};
+use crate::env::{PipelineStats, VecEnv, VecStep};
 use crate::ppo::{EnvAnswer, Ppo, TimeOuts, UpdateStats};
 use crate::LearnError;
 
@@ -38,6 +38,8 @@ pub struct IterationStats {
     pub lr: f64,
     pub steps_per_s: f64,
     pub timing: IterationTiming,
+    /// What the action pipeline did in this iteration's rollout (phase tasks).
+    pub pipeline: Option<PipelineStats>,
 }
 
 /// Where one iteration's wall time went, s.
@@ -300,6 +302,7 @@ impl Runner {
         let start = Instant::now();
         let mut env_s = 0.0;
         self.env.take_physics_s();
+        self.env.take_pipeline_stats();
         for _ in 0..self.steps_per_env {
             let (env, buf, episodes) = (&mut self.env, &mut self.buf, &mut self.episodes);
             let reward_scale = self.reward_scale;
@@ -317,6 +320,7 @@ impl Runner {
         }
         let rollout_s = start.elapsed().as_secs_f64();
         let physics_s = self.env.take_physics_s();
+        let pipeline = self.env.take_pipeline_stats();
         let update_start = Instant::now();
         let update = self.ppo.update(&self.critic_obs)?;
         let timing = IterationTiming {
@@ -338,6 +342,7 @@ impl Runner {
             lr: self.ppo.learning_rate(),
             steps_per_s: samples as f64 / start.elapsed().as_secs_f64(),
             timing,
+            pipeline,
         })
     }
 

@@ -29,12 +29,34 @@ fn a_few_lift_iterations_raise_the_evaluation_return() {
         payload_file: None,
     };
     let mut evals = Vec::new();
+    let mut rows = Vec::new();
     train(&config, &options, |row: &MetricsRow| {
         if let Some(r) = row.eval_return {
             evals.push(r);
         }
+        rows.push(*row);
     })
     .unwrap();
+    // Every iteration logs what the action pipeline did in its rollout.
+    for row in &rows {
+        let (Some(t), Some(h), Some(f), Some(peak)) = (
+            row.mean_t_max,
+            row.hold_fraction,
+            row.mean_grasp_force_n,
+            row.peak_grasp_force_n,
+        ) else {
+            panic!(
+                "iteration {} has no pipeline figures: {row:?}",
+                row.iteration
+            );
+        };
+        assert!(
+            (0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&h),
+            "{row:?}"
+        );
+        // The payload rests on the ground at a lift's start, held by both grasps.
+        assert!(f > 0.0 && f <= peak && peak.is_finite(), "{row:?}");
+    }
     assert_eq!(evals.len(), 2, "{evals:?}");
     assert!(evals.iter().all(|r| r.is_finite() && *r < 0.0), "{evals:?}");
     assert!(evals[1] > evals[0], "no learning signal: {evals:?}");

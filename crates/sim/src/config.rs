@@ -295,10 +295,7 @@ mod tests {
                 text.replace("collision_hz = 50.0", "collision_hz = 40.0"),
                 "physics.collision_hz",
             ),
-            (
-                set("physics_hz", "1e12"),
-                "physics.physics_hz",
-            ),
+            (set("physics_hz", "1e12"), "physics.physics_hz"),
             (
                 set("num_internal_pgs_iterations", "1000000000"),
                 "physics.num_internal_pgs_iterations",

@@ -351,6 +351,12 @@ impl Episode {
         Ok(next)
     }
 
+    /// What each unit's pipeline did at the last [`Episode::commands`] (`None` before the
+    /// first).
+    pub fn reports(&self) -> Option<&[PipelineReport; UNITS]> {
+        self.reports.as_ref()
+    }
+
     /// Time since the episode began, s.
     pub fn time_s(&self, task: &PhaseTask) -> f64 {
         self.steps as f64 * task.control_period_s

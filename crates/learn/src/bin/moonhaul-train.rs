@@ -165,8 +165,17 @@ fn main() -> Result<()> {
         let fmt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1}"));
         last_eval = row.eval_return.or(last_eval);
         bar.set_position(row.iteration as u64);
+        let clamp = match (row.mean_t_max, row.hold_fraction, row.mean_grasp_force_n) {
+            (Some(t), Some(h), Some(f)) => {
+                format!(
+                    " | t_max {t:.3} | holds {:.1} % | grasp {f:.0} N",
+                    h * 100.0
+                )
+            }
+            _ => String::new(),
+        };
         bar.set_message(format!(
-            "{:.0} steps/s | return {} | eval {} | kl {:.4} | lr {:.1e}",
+            "{:.0} steps/s | return {} | eval {} | kl {:.4} | lr {:.1e}{clamp}",
             row.steps_per_s,
             fmt(row.mean_return),
             fmt(last_eval),
