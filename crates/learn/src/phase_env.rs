@@ -58,7 +58,8 @@ pub fn payload_sample(state: &EnvState) -> PayloadSample {
     }
 }
 
-/// The phase reward of one step.
+/// The phase reward of one step: the paper's r_L, r_T or r_P plus the two terms not in the paper
+/// ([`RewardConfig::pipeline_terms`], off at the shipped weights of 0).
 pub fn phase_reward(
     reward: &RewardConfig,
     task: &PhaseTask,
@@ -75,15 +76,17 @@ pub fn phase_reward(
         position_m: [p_ref.x, p_ref.y],
         velocity_mps: [v_cmd.x, v_cmd.y],
     };
-    match episode.phase() {
-        Phase::Lift | Phase::Idle => {
-            let weight_n = env.payload_mass_kg(scene) * scene.config.physics.gravity_mps2.abs();
-            let forces = state.units.map(|u| u.grasp.force_n);
-            reward.lift(&sample, &goal, force_variance(&forces, weight_n))
-        }
+    let weight_n = env.payload_mass_kg(scene) * scene.config.physics.gravity_mps2.abs();
+    let forces = state.units.map(|u| u.grasp.force_n);
+    let paper = match episode.phase() {
+        Phase::Lift | Phase::Idle => reward.lift(&sample, &goal, force_variance(&forces, weight_n)),
         Phase::Transport => reward.transport(&sample, &goal),
         Phase::Place => reward.place(&sample, &goal),
-    }
+    };
+    let t_max = episode
+        .reports()
+        .map_or([1.0; UNITS], |r| r.map(|r| r.clamp.t_max));
+    paper + reward.pipeline_terms(&t_max, &forces, weight_n)
 }
 
 /// A batch of phase-task worlds.

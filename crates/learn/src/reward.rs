@@ -8,6 +8,13 @@
 //! r_P = −w_p (‖p − p_B‖/p_tol)² − w_h0 (h/h0_tol)² − w_ḣ (ḣ/ḣ_tol)² − w_θ (θ/θ_tol)²
 //! ```
 //!
+//! Two terms are **not in the paper** (issue 18), each off at weight 0, which is the paper's
+//! reward (the shipped phase configs): `−w_clamp_step · mean_i(1 − t_max,i)`, what the clamp cut
+//! of each unit's increment this tick (0 when both full steps were issued, 1 on a hold), and
+//! `−w_squeeze · ((|F₁| + |F₂|)/(m g) − 1)₊`, the grasp force beyond what carrying the payload
+//! needs — an internal squeeze that σ_f cannot see, since it penalizes only the arms'
+//! *difference*. See [`RewardConfig::pipeline_terms`].
+//!
 //! Every term is ≤ 0, so the best return is 0. (The paper reports positive plateau rewards —
 //! 105.9 for lift — which these equations cannot produce; its training code must add a term
 //! the paper does not give. We implement the equations as written.)
@@ -25,7 +32,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use moonhaul_core::config::{positive, FieldError, Validate};
+use moonhaul_core::config::{in_range, positive, FieldError, Validate};
 
 /// Table II: every tolerance and weight (the same table for all phases).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -59,6 +66,10 @@ pub struct RewardConfig {
     pub w_force_variance: f64,
     /// w_h0 (paper: 1.0).
     pub w_final_height: f64,
+    /// Not in the paper: weight of the clamp-step term (module docs); 0 = the paper's reward.
+    pub w_clamp_step: f64,
+    /// Not in the paper: weight of the squeeze term (module docs); 0 = the paper's reward.
+    pub w_squeeze: f64,
 }
 
 impl Validate for RewardConfig {
@@ -82,6 +93,12 @@ impl Validate for RewardConfig {
             ("w_final_height", self.w_final_height, 100.0),
         ] {
             positive(field, value, max)?;
+        }
+        for (field, value) in [
+            ("w_clamp_step", self.w_clamp_step),
+            ("w_squeeze", self.w_squeeze),
+        ] {
+            in_range(field, value, 0.0, 100.0)?;
         }
         Ok(())
     }
@@ -157,6 +174,28 @@ impl RewardConfig {
         self.height_term(s, goal) + self.vertical_speed_term(s)
             - self.w_force_variance * (force_variance / self.force_variance_tol)
             + self.tilt_term(s)
+    }
+
+    /// The two terms not in the paper (module docs), ≤ 0: `t_max` of each unit's issued step
+    /// this tick, `grasp_forces_n` the grasps' force magnitudes (both 0 once released) and
+    /// `payload_weight_n` = m g.
+    pub fn pipeline_terms(
+        &self,
+        t_max: &[f64],
+        grasp_forces_n: &[f64],
+        payload_weight_n: f64,
+    ) -> f64 {
+        let cut = if t_max.is_empty() {
+            0.0
+        } else {
+            t_max.iter().map(|t| 1.0 - t.clamp(0.0, 1.0)).sum::<f64>() / t_max.len() as f64
+        };
+        let squeeze = if payload_weight_n > 0.0 {
+            (grasp_forces_n.iter().sum::<f64>() / payload_weight_n - 1.0).max(0.0)
+        } else {
+            0.0
+        };
+        -self.w_clamp_step * cut - self.w_squeeze * squeeze
     }
 
     /// r_T.
@@ -284,5 +323,37 @@ mod tests {
         close(force_variance(&[75.0, 25.0], 100.0), 0.25);
         close(force_variance(&[], 100.0), 0.0);
         close(force_variance(&[10.0, 0.0], 0.0), 0.0);
+    }
+
+    #[test]
+    fn the_terms_not_in_the_paper_are_off_as_shipped_and_measure_cut_and_squeeze() {
+        let shipped = table_two();
+        close(
+            shipped.pipeline_terms(&[0.0, 0.5], &[300.0, 300.0], 100.0),
+            0.0,
+        );
+        let on = RewardConfig {
+            w_clamp_step: 2.0,
+            w_squeeze: 0.5,
+            ..shipped
+        };
+        // Full steps and exactly the weight carried: nothing to pay.
+        close(on.pipeline_terms(&[1.0, 1.0], &[60.0, 40.0], 100.0), 0.0);
+        // One hold (cut 1) and one half step: mean cut 0.75; forces 1.5x the weight: 0.5 over.
+        close(
+            on.pipeline_terms(&[0.0, 0.5], &[90.0, 60.0], 100.0),
+            -2.0 * 0.75 - 0.5 * 0.5,
+        );
+        // Carrying less than the weight (payload on the ground) is no squeeze.
+        close(on.pipeline_terms(&[1.0, 1.0], &[10.0, 10.0], 100.0), 0.0);
+        let bad = RewardConfig {
+            w_squeeze: -1.0,
+            ..shipped
+        };
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("w_squeeze"));
     }
 }
