@@ -564,14 +564,15 @@ fn deployed_cases(
         cases.push((case, summary));
     }
     let sum = |f: fn(&deployed::DeployedMission) -> f64| missions.iter().map(f).sum::<f64>();
-    let ticks = sum(|m| m.policy_ticks as f64).max(1.0);
+    let mut tally = moonhaul_coord::ClampTally::default();
+    missions.iter().for_each(|m| tally.merge(&m.clamp));
     let loaded = sum(|m| m.loaded_ticks as f64).max(1.0);
     let n = missions.len().max(1) as f64;
     let clamp = json!({
-        "mean_t_max": sum(|m| m.t_max_sum) / ticks,
-        "clamped_tick_fraction": sum(|m| m.clamped_ticks as f64) / ticks,
-        "hold_tick_fraction": sum(|m| m.hold_ticks as f64) / ticks,
-        "no_step_fraction": sum(|m| m.no_step_ticks as f64) / ticks,
+        "mean_t_max": tally.mean_t_max().unwrap_or(0.0),
+        "clamped_tick_fraction": tally.clamped_fraction().unwrap_or(0.0),
+        "hold_tick_fraction": tally.hold_fraction().unwrap_or(0.0),
+        "no_step_fraction": tally.no_step_fraction().unwrap_or(0.0),
         "mean_tracking_d": sum(|m| m.tracking_d_sum) / loaded,
         "completed_rate": missions.iter().filter(|m| m.completed).count() as f64 / n,
     });

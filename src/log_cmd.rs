@@ -597,7 +597,7 @@ impl ClampStats {
     /// read is added to `unread`, and an unreadable log is left out.
     fn of_trial(folder: &Path, unread: &mut Vec<String>) -> Option<ClampStats> {
         use moonhaul_coord::HoldReason;
-        let (mut n, mut t_sum, mut clamped, mut held) = (0u64, 0.0, 0u64, 0u64);
+        let mut tally = moonhaul_coord::ClampTally::default();
         let mut any = false;
         for i in 0.. {
             let path = folder.join(format!("unit-{i}.mcap"));
@@ -623,21 +623,15 @@ impl ClampStats {
                 let running = r.phase.has_policy()
                     && matches!(r.hold, None | Some(HoldReason::NoAdmissibleStep));
                 if running {
-                    n += 1;
-                    t_sum += r.t_max;
-                    clamped += u64::from(r.t_max < 1.0);
-                    held += u64::from(r.hold == Some(HoldReason::NoAdmissibleStep));
+                    tally.record(r.t_max, r.hold);
                 }
             }
         }
-        any.then(|| {
-            let per = |k: u64| if n > 0 { k as f64 / n as f64 } else { 0.0 };
-            ClampStats {
-                policy_ticks: n,
-                mean_t_max: if n > 0 { t_sum / n as f64 } else { 0.0 },
-                clamped_fraction: per(clamped),
-                held_fraction: per(held),
-            }
+        any.then(|| ClampStats {
+            policy_ticks: tally.ticks,
+            mean_t_max: tally.mean_t_max().unwrap_or(0.0),
+            clamped_fraction: tally.clamped_fraction().unwrap_or(0.0),
+            held_fraction: tally.no_step_fraction().unwrap_or(0.0),
         })
     }
 }

@@ -18,7 +18,7 @@
 
 use anyhow::{Context, Result};
 use moonhaul_coord::message::{Body, Envelope, OperatorCommand, RejectCounts, Sender, StopReason};
-use moonhaul_coord::{HoldReason, TeamSettings};
+use moonhaul_coord::{ClampTally, HoldReason, TeamSettings};
 use moonhaul_core::state::Phase;
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::sim_link::SimHardware;
@@ -50,15 +50,8 @@ pub struct Stack {
 /// One deployed mission's rows, split by phase, and what the pipeline did.
 pub struct DeployedMission {
     pub segments: ScriptedSegments,
-    /// Unit ticks in Lift, Transport or Place (both units counted).
-    pub policy_ticks: u64,
-    /// Of those: issued less than the full step; held (any reason); held for want of an
-    /// admissible step.
-    pub clamped_ticks: u64,
-    pub hold_ticks: u64,
-    pub no_step_ticks: u64,
-    /// Sum of t_max over the policy ticks (0 on a hold).
-    pub t_max_sum: f64,
+    /// What the clamp issued on the unit ticks in Lift, Transport or Place (both units).
+    pub clamp: ClampTally,
     /// Sum and count of d(U_{k−1}, Y_k) over loaded policy ticks (grasp closed).
     pub tracking_d_sum: f64,
     pub loaded_ticks: u64,
@@ -222,11 +215,7 @@ pub fn missions(
 #[derive(Default)]
 struct Tally {
     segments: Option<ScriptedSegments>,
-    policy_ticks: u64,
-    clamped_ticks: u64,
-    hold_ticks: u64,
-    no_step_ticks: u64,
-    t_max_sum: f64,
+    clamp: ClampTally,
     tracking_d_sum: f64,
     loaded_ticks: u64,
     force_sum_n: f64,
@@ -264,11 +253,7 @@ impl Tally {
         if !r.phase.has_policy() {
             return;
         }
-        self.policy_ticks += 1;
-        self.t_max_sum += r.t_max;
-        self.clamped_ticks += u64::from(r.t_max < 1.0);
-        self.hold_ticks += u64::from(r.hold.is_some());
-        self.no_step_ticks += u64::from(r.hold == Some(HoldReason::NoAdmissibleStep));
+        self.clamp.record(r.t_max, r.hold);
         if let (true, Some(d)) = (grasped, r.tracking_d) {
             self.tracking_d_sum += d;
             self.loaded_ticks += 1;
@@ -332,11 +317,7 @@ impl Tally {
                 transport: Vec::new(),
                 place: Vec::new(),
             }),
-            policy_ticks: self.policy_ticks,
-            clamped_ticks: self.clamped_ticks,
-            hold_ticks: self.hold_ticks,
-            no_step_ticks: self.no_step_ticks,
-            t_max_sum: self.t_max_sum,
+            clamp: self.clamp,
             tracking_d_sum: self.tracking_d_sum,
             loaded_ticks: self.loaded_ticks,
             max_grasp_force_n: self.max_grasp_force_n,

@@ -418,5 +418,61 @@ impl Clamp {
     }
 }
 
+/// What the clamp issued over many ticks (a mission, a training rollout, a unit log): the
+/// figures its soundness is judged by. Sums, so tallies of batches and units merge.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ClampTally {
+    /// Ticks counted.
+    pub ticks: u64,
+    /// Sum of the issued t_max (0 on a hold).
+    pub t_max_sum: f64,
+    /// Ticks that issued less than the full step (t_max < 1, holds included).
+    pub clamped: u64,
+    /// Ticks that issued a hold, for any reason.
+    pub holds: u64,
+    /// Of the holds, those for want of an admissible step.
+    pub no_step: u64,
+}
+
+impl ClampTally {
+    /// Counts one tick that issued `t_max` with `hold` (a [`ClampReport`]'s, or a log's).
+    pub fn record(&mut self, t_max: f64, hold: Option<HoldReason>) {
+        self.ticks += 1;
+        self.t_max_sum += t_max;
+        self.clamped += u64::from(t_max < 1.0);
+        self.holds += u64::from(hold.is_some());
+        self.no_step += u64::from(hold == Some(HoldReason::NoAdmissibleStep));
+    }
+
+    pub fn merge(&mut self, other: &ClampTally) {
+        self.ticks += other.ticks;
+        self.t_max_sum += other.t_max_sum;
+        self.clamped += other.clamped;
+        self.holds += other.holds;
+        self.no_step += other.no_step;
+    }
+
+    /// `count` per tick; `None` before any tick.
+    fn per_tick(&self, count: f64) -> Option<f64> {
+        (self.ticks > 0).then(|| count / self.ticks as f64)
+    }
+
+    pub fn mean_t_max(&self) -> Option<f64> {
+        self.per_tick(self.t_max_sum)
+    }
+
+    pub fn clamped_fraction(&self) -> Option<f64> {
+        self.per_tick(self.clamped as f64)
+    }
+
+    pub fn hold_fraction(&self) -> Option<f64> {
+        self.per_tick(self.holds as f64)
+    }
+
+    pub fn no_step_fraction(&self) -> Option<f64> {
+        self.per_tick(self.no_step as f64)
+    }
+}
+
 #[cfg(test)]
 mod tests;

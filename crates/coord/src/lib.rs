@@ -32,7 +32,7 @@ pub mod team;
 pub mod validator;
 
 pub use auth::{KeyFile, Sealer};
-pub use clamp::{Clamp, ClampInput, ClampReport, HoldReason};
+pub use clamp::{Clamp, ClampInput, ClampReport, ClampTally, HoldReason};
 pub use config::{GateConfig, SyncConfig, TeamError, TeamSettings};
 pub use gate::{Measurements, PhaseGate};
 pub use message::Envelope;

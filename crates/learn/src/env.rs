@@ -23,6 +23,8 @@
 //! episode was cut by the clock, not finished, so its value did not drop to zero. Rows of
 //! `final_obs` and `final_critic_obs` for envs that did not end are unspecified.
 
+use moonhaul_coord::{ClampReport, ClampTally};
+
 use crate::LearnError;
 
 /// One batched step's outputs, reused across steps (allocate once with [`VecStep::new`]).
@@ -128,59 +130,39 @@ pub trait VecEnv {
 }
 
 /// What the onboard action pipeline (increment → clamp → drives) did over some unit ticks: the
-/// clamp figures the learned mission is judged by (mean t_max, holds) and the grasp force that
-/// shows whether a policy lifts by squeezing. Sums, so batches and steps add up.
+/// clamp figures the learned mission is judged by ([`ClampTally`], the one eval and the log
+/// summary use) and the grasp force that shows whether a policy lifts by squeezing. Sums, so
+/// batches and steps add up.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PipelineStats {
-    /// Unit ticks counted (one per unit per world step).
-    pub unit_ticks: u64,
-    /// Sum of the issued t_max (0 on a hold).
-    pub t_max_sum: f64,
-    /// Ticks on which the clamp issued a hold (no admissible step, or a hold requested).
-    pub holds: u64,
-    /// Sum over unit ticks of the grasp force magnitude, N.
+    /// One tick per unit per world step.
+    pub clamp: ClampTally,
+    /// Sum over the unit ticks of the grasp force magnitude, N.
     pub grasp_force_sum_n: f64,
     /// Largest grasp force magnitude seen, N.
     pub grasp_force_peak_n: f64,
 }
 
 impl PipelineStats {
-    /// Adds one unit tick.
-    pub fn record(&mut self, t_max: f64, hold: bool, grasp_force_n: f64) {
-        self.unit_ticks += 1;
-        self.t_max_sum += t_max;
-        self.holds += u64::from(hold);
+    /// Adds one unit tick: what its clamp issued and its grasp's force magnitude.
+    pub fn record(&mut self, clamp: &ClampReport, grasp_force_n: f64) {
+        self.clamp.record(clamp.t_max, clamp.hold);
         self.grasp_force_sum_n += grasp_force_n;
         self.grasp_force_peak_n = self.grasp_force_peak_n.max(grasp_force_n);
     }
 
     pub fn merge(&mut self, other: &PipelineStats) {
-        self.unit_ticks += other.unit_ticks;
-        self.t_max_sum += other.t_max_sum;
-        self.holds += other.holds;
+        self.clamp.merge(&other.clamp);
         self.grasp_force_sum_n += other.grasp_force_sum_n;
         self.grasp_force_peak_n = self.grasp_force_peak_n.max(other.grasp_force_peak_n);
     }
 
-    fn per_tick(&self, sum: f64) -> Option<f64> {
-        (self.unit_ticks > 0).then(|| sum / self.unit_ticks as f64)
-    }
-
-    pub fn mean_t_max(&self) -> Option<f64> {
-        self.per_tick(self.t_max_sum)
-    }
-
-    /// Fraction of unit ticks that issued a hold.
-    pub fn hold_fraction(&self) -> Option<f64> {
-        self.per_tick(self.holds as f64)
-    }
-
     pub fn mean_grasp_force_n(&self) -> Option<f64> {
-        self.per_tick(self.grasp_force_sum_n)
+        (self.clamp.ticks > 0).then(|| self.grasp_force_sum_n / self.clamp.ticks as f64)
     }
 
     pub fn peak_grasp_force_n(&self) -> Option<f64> {
-        (self.unit_ticks > 0).then_some(self.grasp_force_peak_n)
+        (self.clamp.ticks > 0).then_some(self.grasp_force_peak_n)
     }
 }
 

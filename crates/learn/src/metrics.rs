@@ -53,8 +53,8 @@ impl MetricsRow {
             kl: stats.update.kl,
             lr: stats.lr,
             steps_per_s: stats.steps_per_s,
-            mean_t_max: stats.pipeline.and_then(|p| p.mean_t_max()),
-            hold_fraction: stats.pipeline.and_then(|p| p.hold_fraction()),
+            mean_t_max: stats.pipeline.and_then(|p| p.clamp.mean_t_max()),
+            hold_fraction: stats.pipeline.and_then(|p| p.clamp.hold_fraction()),
             mean_grasp_force_n: stats.pipeline.and_then(|p| p.mean_grasp_force_n()),
             peak_grasp_force_n: stats.pipeline.and_then(|p| p.peak_grasp_force_n()),
         }

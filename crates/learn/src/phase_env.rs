@@ -318,11 +318,7 @@ impl VecEnv for PhaseVecEnv {
                 let physics_end = Instant::now();
                 if let Some(reports) = world.episode.reports() {
                     for (report, unit) in reports.iter().zip(&state.units) {
-                        world.pipeline.record(
-                            report.clamp.t_max,
-                            report.clamp.hold.is_some(),
-                            unit.grasp.force_n,
-                        );
+                        world.pipeline.record(&report.clamp, unit.grasp.force_n);
                     }
                 }
                 world.physics_cpu_s = (physics_end - start).as_secs_f64();

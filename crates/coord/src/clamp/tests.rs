@@ -364,3 +364,20 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_tally_counts_steps_cuts_and_holds_and_merges() {
+    let mut a = ClampTally::default();
+    assert_eq!(a.mean_t_max(), None);
+    a.record(1.0, None);
+    a.record(0.5, None);
+    let mut b = ClampTally::default();
+    b.record(0.0, Some(HoldReason::NoAdmissibleStep));
+    b.record(0.0, Some(HoldReason::Idle));
+    a.merge(&b);
+    assert_eq!((a.ticks, a.clamped, a.holds, a.no_step), (4, 3, 2, 1));
+    assert_eq!(a.mean_t_max(), Some(0.375));
+    assert_eq!(a.hold_fraction(), Some(0.5));
+    assert_eq!(a.no_step_fraction(), Some(0.25));
+    assert_eq!(a.clamped_fraction(), Some(0.75));
+}
