@@ -349,6 +349,27 @@ mod tests {
     }
 
     #[test]
+    fn the_added_terms_variant_is_the_lift_config_with_only_those_weights_on() {
+        let (lift, mut variant) = (repo_config("lift"), repo_config("lift_pipeline_terms"));
+        let weights = variant.reward.map(|r| (r.w_clamp_step, r.w_squeeze));
+        assert_eq!(weights, Some((1.0, 1.0)));
+        let paper = lift.reward.map(|r| (r.w_clamp_step, r.w_squeeze));
+        assert_eq!(
+            paper,
+            Some((0.0, 0.0)),
+            "the shipped lift reward is the paper's"
+        );
+        if let Some(r) = &mut variant.reward {
+            (r.w_clamp_step, r.w_squeeze) = (0.0, 0.0);
+        }
+        variant.run.name = lift.run.name.clone();
+        assert_eq!(
+            variant, lift,
+            "the variant drifted from configs/train/lift.toml"
+        );
+    }
+
+    #[test]
     fn phase_configs_hold_table_one() {
         // (lr, gamma, entropy, envs, hidden) per phase; lambda, clip, epochs, minibatches shared.
         // Env counts are this machine's compute choice (worlds of two units), in the paper's
