@@ -104,6 +104,12 @@ impl ActionPipeline {
         &self.targets[self.unit]
     }
 
+    /// Consecutive ticks, up to this one, that this unit's own U_{k−1} was beyond tolerance of
+    /// its sensed state, over the hold rule's `tracking_stop_ticks` (1: the safety stop fires).
+    pub fn tracking_stop_progress(&self) -> f64 {
+        f64::from(self.beyond_ticks) / f64::from(self.hold.tracking_stop_ticks.max(1))
+    }
+
     /// Forgets the hold rule's count (a new mission, or the drives were re-enabled).
     pub fn reset(&mut self) {
         self.beyond_ticks = 0;

@@ -22,25 +22,36 @@
 //! base, x forward, z up. Poses from [`UnitState::base_pose`] are wheel odometry in the team's
 //! shared world frame (all units start from known poses in it).
 //!
+//! **The policy sees what it commands** (layout 3). The action is an increment on U_{k−1}, so
+//! whatever part of an increment the closed chain resists stays in U_{k−1} − Y as servo force;
+//! a policy that cannot see it winds its command up against the chain (layout 2 held on half its
+//! ticks and squeezed with twice the scripted grasp force). Layout 3 adds what a unit knows of
+//! the commands and the pipeline ([`CommandState`]): its own U_{k−1} relative to its encoders, its
+//! peer's published command relative to its published joints, the last t_max and whether the
+//! pipeline held, and from the phase goal the phase's progress and the reference's offset (the
+//! transport reference runs on a clock the goal alone does not show).
+//!
 //! **Layout** ([`OBS_LAYOUT_VERSION`], [`OBS_FIELDS`]): the policy file records both; a runtime
 //! refuses a policy whose layout differs ([`check_layout`]).
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector2, Vector3};
 
 use crate::kinematics::KinematicsError;
-use crate::state::{PlanarPose, UnitState, ARM_JOINTS, WHEEL_JOINTS};
+use crate::state::{PlanarPose, UnitCommand, UnitState, ARM_JOINTS, WHEEL_JOINTS};
 use crate::unit::UnitSpec;
 
 /// Version of the observation layout below; bump it with any change to the fields or their
 /// meaning.
-pub const OBS_LAYOUT_VERSION: u32 = 2;
+pub const OBS_LAYOUT_VERSION: u32 = 3;
 
 /// The fields of o⁽ⁱ⁾ in order, with their widths.
-pub const OBS_FIELDS: [(&str, usize); 11] = [
-    // x⁽ⁱ⁾: own encoders.
+pub const OBS_FIELDS: [(&str, usize); 19] = [
+    // x⁽ⁱ⁾: own encoders, and the own command U_{k−1} (arm relative to the encoders).
     ("own.arm_position_rad", ARM_JOINTS),
     ("own.arm_velocity_radps", ARM_JOINTS),
     ("own.wheel_velocity_radps", WHEEL_JOINTS),
+    ("own.arm_command_minus_sensed_rad", ARM_JOINTS),
+    ("own.wheel_command_radps", WHEEL_JOINTS),
     // Δxᶜ: the cargo's displacement from its grasp at rest, by FK of the own arm.
     ("cargo.ee_displacement_m", 3),
     ("cargo.ee_rotation_rad", 3),
@@ -49,9 +60,16 @@ pub const OBS_FIELDS: [(&str, usize); 11] = [
     ("peer.ee_rotation_rad", 3),
     ("peer.base_offset", 3),
     ("peer.wheel_velocity_radps", WHEEL_JOINTS),
+    ("peer.arm_command_minus_sensed_rad", ARM_JOINTS),
+    ("peer.wheel_command_radps", WHEEL_JOINTS),
+    // The action pipeline's last step.
+    ("pipeline.last_t_max", 1),
+    ("pipeline.last_held", 1),
     // The phase goal.
     ("goal.height_m", 1),
     ("goal.base", 4),
+    ("goal.phase_progress", 1),
+    ("goal.reference_offset_m", 2),
 ];
 
 /// Length of o⁽ⁱ⁾.
@@ -230,6 +248,38 @@ pub struct PhaseGoal {
     pub base_goal_m: Vector2<f64>,
     /// The commanded payload velocity now, world frame, m/s.
     pub velocity_mps: Vector2<f64>,
+    /// Where this unit's base should be now on the phase's reference (the transport profile's
+    /// point; the base goal in the other phases), world frame, m.
+    pub reference_m: Vector2<f64>,
+    /// Time since the phase began over the phase's episode length, clamped to [0, 1].
+    pub progress: f64,
+}
+
+/// What a unit knows of the commands and of its action pipeline, besides its sensors
+/// (observation layout 3).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CommandState {
+    /// U_{k−1}: the command this unit issued last tick.
+    pub own: UnitCommand,
+    /// The command the peer published with its last state.
+    pub peer: UnitCommand,
+    /// t_max of the pipeline's last step (0 when it held).
+    pub last_t_max: f64,
+    /// Whether the pipeline's last step was a hold (requested, or no admissible step).
+    pub last_held: bool,
+}
+
+impl CommandState {
+    /// The state before any step of a phase was issued: both units at `own` and `peer`, after
+    /// a hold (a phase always begins after the gate's hold in Idle or a transition).
+    pub fn after_hold(own: UnitCommand, peer: UnitCommand) -> Self {
+        CommandState {
+            own,
+            peer,
+            last_t_max: 0.0,
+            last_held: true,
+        }
+    }
 }
 
 /// The end-effector pose in the base (odometry) frame for arm joints `q`.
@@ -269,13 +319,20 @@ fn displacement(rest: &Isometry3<f64>, ee: &Isometry3<f64>) -> (Vector3<f64>, Ve
     (dp, dr.scaled_axis())
 }
 
-/// Writes o⁽ⁱ⁾ of a unit with state `own` whose peer published `peer`, into `out`
-/// (`[ACTOR_OBS_DIM]`). Pure and allocation-free; FK fails only on a malformed spec.
+/// `command` − `sensed` per arm joint, rad.
+fn command_minus_sensed(command: &UnitCommand, sensed: &UnitState) -> [f64; ARM_JOINTS] {
+    std::array::from_fn(|j| command.arm_position_rad[j] - sensed.arm.position_rad[j])
+}
+
+/// Writes o⁽ⁱ⁾ of a unit with state `own` whose peer published `peer`, with the commands and
+/// pipeline state `commands`, into `out` (`[ACTOR_OBS_DIM]`). Pure and allocation-free; FK
+/// fails only on a malformed spec.
 pub fn unit_observation(
     spec: &UnitSpec,
     reference: &GraspReference,
     own: &UnitState,
     peer: &UnitState,
+    commands: &CommandState,
     goal: &PhaseGoal,
     out: &mut [f64; ACTOR_OBS_DIM],
 ) -> Result<(), KinematicsError> {
@@ -287,6 +344,8 @@ pub fn unit_observation(
     push(&own.arm.position_rad);
     push(&own.arm.velocity_radps);
     push(&own.wheels.velocity_radps);
+    push(&command_minus_sensed(&commands.own, own));
+    push(&commands.own.wheel_velocity_radps);
     let rest = &reference.ee_rest_in_base;
     let (dp, dr) = displacement(rest, &ee_in_base(spec, &own.arm.position_rad)?);
     push(dp.as_slice());
@@ -305,12 +364,18 @@ pub fn unit_observation(
         wrap_angle(peer_base.yaw_rad - r.yaw_rad),
     ]);
     push(&peer.wheels.velocity_radps);
+    push(&command_minus_sensed(&commands.peer, peer));
+    push(&commands.peer.wheel_velocity_radps);
+    push(&[commands.last_t_max, f64::from(u8::from(commands.last_held))]);
     push(&[goal.height_m]);
     let (sin, cos) = own.base_pose.yaw_rad.sin_cos();
     let to_base = |v: Vector2<f64>| [cos * v.x + sin * v.y, -sin * v.x + cos * v.y];
-    let to_go = to_base(goal.base_goal_m - Vector2::new(own.base_pose.x_m, own.base_pose.y_m));
+    let position = Vector2::new(own.base_pose.x_m, own.base_pose.y_m);
+    let to_go = to_base(goal.base_goal_m - position);
     let velocity = to_base(goal.velocity_mps);
     push(&[to_go[0], to_go[1], velocity[0], velocity[1]]);
+    push(&[goal.progress]);
+    push(&to_base(goal.reference_m - position));
     debug_assert_eq!(k, ACTOR_OBS_DIM);
     Ok(())
 }
@@ -339,20 +404,21 @@ mod tests {
 
     #[test]
     fn layout_fields_add_up_and_round_trip_through_metadata() {
-        assert_eq!(ACTOR_OBS_DIM, 38);
-        assert_eq!(field_range("cargo.ee_displacement_m"), Some(16..19));
-        assert_eq!(field_range("goal.base"), Some(34..38));
+        assert_eq!(ACTOR_OBS_DIM, 61);
+        assert_eq!(field_range("cargo.ee_displacement_m"), Some(25..28));
+        assert_eq!(field_range("goal.base"), Some(54..58));
+        assert_eq!(field_range("goal.reference_offset_m"), Some(59..61));
         assert_eq!(field_range("nope"), None);
-        assert_eq!(CARGO_DISPLACEMENT, 16);
+        assert_eq!(CARGO_DISPLACEMENT, 25);
         assert_eq!(
             field_range("peer.ee_displacement_m").map(|r| r.start),
             Some(PEER_DISPLACEMENT)
         );
-        assert_eq!(GOAL_BASE, 34);
+        assert_eq!(GOAL_BASE, 54);
         let mut obs = [0.0; ACTOR_OBS_DIM];
-        obs[18] = 0.2;
+        obs[27] = 0.2;
         obs[PEER_DISPLACEMENT + 2] = 0.4;
-        obs[34] = 1.5;
+        obs[54] = 1.5;
         let view = ObservationView(&obs);
         assert!((view.lift_estimate_m() - 0.3).abs() < 1e-15);
         assert_eq!(view.goal_offset_m(), [1.5, 0.0]);
@@ -364,7 +430,7 @@ mod tests {
         extra.insert(LAYOUT_VERSION_KEY.into(), "0".into());
         let err = check_layout(&extra).unwrap_err().to_string();
         assert!(
-            err.contains("version 0") && err.contains("version 2"),
+            err.contains("version 0") && err.contains("version 3"),
             "{err}"
         );
     }
@@ -380,23 +446,44 @@ mod tests {
             height_m: 0.3,
             base_goal_m: Vector2::new(2.0, -0.8),
             velocity_mps: Vector2::new(0.2, 0.0),
+            reference_m: Vector2::new(0.5, -0.8),
+            progress: 0.25,
         };
+        let commands = CommandState::after_hold(held_at(q), held_at(q));
         let mut out = [f64::NAN; ACTOR_OBS_DIM];
-        unit_observation(&spec, &reference, &own, &peer, &goal, &mut out).unwrap();
-        assert_eq!(&out[..7], &q);
-        assert!(out[16..33].iter().all(|v| v.abs() < 1e-12), "{out:?}");
-        assert_eq!(out[33], 0.3);
-        assert!((out[34] - 2.0).abs() < 1e-12 && out[35].abs() < 1e-12);
-        assert!((out[36] - 0.2).abs() < 1e-12);
+        unit_observation(&spec, &reference, &own, &peer, &commands, &goal, &mut out).unwrap();
+        let at = |name: &str| &out[field_range(name).unwrap()];
+        assert_eq!(at("own.arm_position_rad"), &q);
+        assert!(out[16..51].iter().all(|v| v.abs() < 1e-12), "{out:?}");
+        assert_eq!(at("pipeline.last_t_max"), &[0.0]);
+        assert_eq!(at("pipeline.last_held"), &[1.0]);
+        assert_eq!(at("goal.height_m"), &[0.3]);
+        let base = at("goal.base");
+        assert!((base[0] - 2.0).abs() < 1e-12 && base[1].abs() < 1e-12);
+        assert!((base[2] - 0.2).abs() < 1e-12);
+        assert_eq!(at("goal.phase_progress"), &[0.25]);
+        let reference_offset = at("goal.reference_offset_m");
+        assert!((reference_offset[0] - 0.5).abs() < 1e-12 && reference_offset[1].abs() < 1e-12);
         // The peer faces −X: the same goal in its frame is behind it.
         let mut peer_out = [0.0; ACTOR_OBS_DIM];
         let peer_ref = GraspReference::capture(&spec, &peer, &own).unwrap();
         let peer_goal = PhaseGoal {
             base_goal_m: Vector2::new(2.0, 0.8),
+            reference_m: Vector2::new(0.5, 0.8),
             ..goal
         };
-        unit_observation(&spec, &peer_ref, &peer, &own, &peer_goal, &mut peer_out).unwrap();
-        assert!((peer_out[34] + 2.0).abs() < 1e-12 && (peer_out[36] + 0.2).abs() < 1e-12);
+        unit_observation(
+            &spec,
+            &peer_ref,
+            &peer,
+            &own,
+            &commands,
+            &peer_goal,
+            &mut peer_out,
+        )
+        .unwrap();
+        assert!((peer_out[54] + 2.0).abs() < 1e-12 && (peer_out[56] + 0.2).abs() < 1e-12);
+        assert!((peer_out[59] + 0.5).abs() < 1e-12);
     }
 
     #[test]
@@ -410,25 +497,54 @@ mod tests {
         lifted.arm.position_rad[1] += 0.05;
         let mut moved_peer = peer;
         moved_peer.base_pose.x_m -= 0.1;
+        // Own command still at rest (the arm was pushed up past it); the peer's ahead of its
+        // joints, wheels commanded forward.
+        let mut peer_command = held_at(q);
+        peer_command.arm_position_rad[3] += 0.02;
+        peer_command.wheel_velocity_radps = [1.0, 1.5];
+        let commands = CommandState {
+            own: held_at(q),
+            peer: peer_command,
+            last_t_max: 0.4,
+            last_held: false,
+        };
         let mut out = [0.0; ACTOR_OBS_DIM];
         unit_observation(
             &spec,
             &reference,
             &lifted,
             &moved_peer,
+            &commands,
             &PhaseGoal::default(),
             &mut out,
         )
         .unwrap();
+        let at = |name: &str| &out[field_range(name).unwrap()];
         let expected = ee_in_base(&spec, &lifted.arm.position_rad)
             .unwrap()
             .translation
             .vector
             - reference.ee_rest_in_base.translation.vector;
-        assert!((Vector3::new(out[16], out[17], out[18]) - expected).norm() < 1e-12);
+        assert!(
+            (Vector3::from_column_slice(at("cargo.ee_displacement_m")) - expected).norm() < 1e-12
+        );
         assert!(expected.norm() > 1e-3);
         // Peer 0.1 m behind in world x: in the own frame (heading +X) that is −0.1 m in x.
-        assert!((out[28] + 0.1).abs() < 1e-12 && out[29].abs() < 1e-12);
+        let peer_base = at("peer.base_offset");
+        assert!((peer_base[0] + 0.1).abs() < 1e-12 && peer_base[1].abs() < 1e-12);
+        let own_offset = at("own.arm_command_minus_sensed_rad");
+        assert!((own_offset[1] + 0.05).abs() < 1e-12, "{own_offset:?}");
+        assert!((at("peer.arm_command_minus_sensed_rad")[3] - 0.02).abs() < 1e-12);
+        assert_eq!(at("peer.wheel_command_radps"), &[1.0, 1.5]);
+        assert_eq!(at("pipeline.last_t_max"), &[0.4]);
+        assert_eq!(at("pipeline.last_held"), &[0.0]);
+    }
+
+    fn held_at(q: [f64; ARM_JOINTS]) -> UnitCommand {
+        UnitCommand {
+            wheel_velocity_radps: [0.0; WHEEL_JOINTS],
+            arm_position_rad: q,
+        }
     }
 
     #[test]

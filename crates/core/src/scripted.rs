@@ -27,7 +27,7 @@ use crate::config::{self, in_range, positive, ConfigError, FieldError, Validate}
 use crate::ik::{self, IkError, IkSettings};
 use nalgebra::{UnitQuaternion, Vector2, Vector3};
 
-use crate::observation::{ee_in_base, GraspReference, PhaseGoal};
+use crate::observation::{ee_in_base, relative_pose, GraspReference, PhaseGoal};
 use crate::state::{Phase, PlanarPose, PlanarVelocity, UnitCommand, UnitState, WHEEL_JOINTS};
 use crate::task_config::VelocityProfile;
 use crate::unit::UnitSpec;
@@ -77,10 +77,20 @@ pub struct MissionPlan {
     /// whose arms disagree slightly about its attitude; what the chain imposes is followed,
     /// not fought. Height stays commanded. 0 is a rigid target.
     pub comply_gain_per_tick: f64,
-    /// Largest rotation the compliance may follow, degrees: beyond it the drives resist.
-    /// Following rotation without bound would follow the payload's own weight (an off-centre
-    /// load tips itself about the grasp line, measured 58°) instead of resisting it.
+    /// Largest *shared* rotation the compliance may follow, degrees: the payload's attitude as
+    /// both units see it (the mean of the two arms' FK views). Beyond it the drives resist:
+    /// following the shared rotation without bound would follow the payload's own weight (an
+    /// off-centre load tips itself about the grasp line, measured 58°) instead of resisting it.
+    /// Once the payload rests on the ground in place (the script presses), the ground holds its
+    /// attitude and the shared part is followed up to `comply_max_internal_rotation_deg` too.
     pub comply_max_rotation_deg: f64,
+    /// Largest *internal* rotation the compliance may follow, degrees: half the two arms'
+    /// disagreement about the payload's attitude (own view minus the peer's, from its published
+    /// joints). One rigid payload has one attitude; the views differ by the bases' unmeasured
+    /// pitch and roll on uneven ground and their odometric yaw, and a wrist that resisted its
+    /// share would fight the other through the payload. Followed fully up to this bound, which
+    /// only guards against a peer's nonsense.
+    pub comply_max_internal_rotation_deg: f64,
 }
 
 impl MissionPlan {
@@ -132,6 +142,12 @@ impl Validate for MissionPlan {
         in_range(
             "comply_max_rotation_deg",
             self.comply_max_rotation_deg,
+            0.0,
+            30.0,
+        )?;
+        in_range(
+            "comply_max_internal_rotation_deg",
+            self.comply_max_internal_rotation_deg,
             0.0,
             30.0,
         )?;
@@ -301,6 +317,9 @@ pub struct ScriptInput<'a> {
     pub reference: &'a GraspReference,
     /// Own encoders, and the base pose by odometry.
     pub own: &'a UnitState,
+    /// The peer's last published state (its encoders and odometric base pose): its arm's view
+    /// of the payload's attitude.
+    pub peer: &'a UnitState,
     /// Own odometric base pose when the phase began.
     pub phase_start_base: &'a PlanarPose,
     pub goal: &'a PhaseGoal,
@@ -319,11 +338,14 @@ pub struct PhaseScript {
     ik: IkSettings,
     /// The lift the script asked for last tick, m: transport holds it, place descends from it.
     lift_m: f64,
-    /// The targets' accumulated compliance: horizontal offset (m) and rotation vector (rad),
-    /// in the base frame.
+    /// The targets' accumulated compliance, in the base frame: horizontal offset (m), and the
+    /// rotation vectors (rad) of the attitude both units share and of their disagreement.
     comply_xy_m: Vector2<f64>,
-    comply_rotation: Vector3<f64>,
+    comply_shared_rotation: Vector3<f64>,
+    comply_internal_rotation: Vector3<f64>,
     place_from_m: f64,
+    /// In place, the chain stopped the descent: the ground carries the payload.
+    pressing: bool,
     phase: Phase,
 }
 
@@ -341,8 +363,10 @@ impl PhaseScript {
             },
             lift_m: 0.0,
             place_from_m: 0.0,
+            pressing: false,
             comply_xy_m: Vector2::zeros(),
-            comply_rotation: Vector3::zeros(),
+            comply_shared_rotation: Vector3::zeros(),
+            comply_internal_rotation: Vector3::zeros(),
             phase: Phase::Idle,
         }
     }
@@ -354,9 +378,13 @@ impl PhaseScript {
                 Phase::Lift => {
                     self.lift_m = 0.0;
                     self.comply_xy_m = Vector2::zeros();
-                    self.comply_rotation = Vector3::zeros();
+                    self.comply_shared_rotation = Vector3::zeros();
+                    self.comply_internal_rotation = Vector3::zeros();
                 }
-                Phase::Place => self.place_from_m = self.lift_m,
+                Phase::Place => {
+                    self.place_from_m = self.lift_m;
+                    self.pressing = false;
+                }
                 Phase::Transport | Phase::Idle => {}
             }
             self.phase = input.phase;
@@ -391,9 +419,12 @@ impl PhaseScript {
             // Only in the slow touchdown descent: in the fast one the arms lag their command
             // by about as much, and the bound would slow it to a press the touchdown rule
             // cannot tell from contact.
-            Phase::Place if t >= p.place_duration_s => p
-                .place_lift_m(self.place_from_m, t)
-                .max(sensed.translation.z - rest.translation.z - p.place_press_m),
+            Phase::Place if t >= p.place_duration_s => {
+                let planned = p.place_lift_m(self.place_from_m, t);
+                let pressed = sensed.translation.z - rest.translation.z - p.place_press_m;
+                self.pressing |= pressed > planned;
+                planned.max(pressed)
+            }
             Phase::Place => p.place_lift_m(self.place_from_m, t),
             Phase::Idle => self.lift_m,
         };
@@ -402,13 +433,37 @@ impl PhaseScript {
         let g = p.comply_gain_per_tick;
         let moved = sensed.translation.vector - commanded.translation.vector;
         self.comply_xy_m += g * moved.xy();
-        let turned = (sensed.rotation * commanded.rotation.inverse()).scaled_axis();
-        let max_rad = p.comply_max_rotation_deg.to_radians();
-        self.comply_rotation = (self.comply_rotation + g * turned).cap_magnitude(max_rad);
+        // Attitude: the payload's rotation since the rest grasp by FK of each arm, the peer's
+        // turned into this base frame by the bases' relative yaw (small rotations: the vectors
+        // add). The shared part (their mean) is followed up to `comply_max_rotation_deg`, the
+        // internal part (half their difference, opposite on the two units) up to the internal
+        // bound; each target low-passes what the chain imposes at the admittance gain.
+        let own_turn = (sensed.rotation * rest.rotation.inverse()).scaled_axis();
+        let peer_sensed = ee_in_base(input.spec, &input.peer.arm.position_rad)?;
+        let peer_rest = &input.reference.peer_ee_rest_in_base;
+        let peer_yaw = relative_pose(&input.own.base_pose, &input.peer.base_pose).yaw_rad;
+        let peer_turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), peer_yaw)
+            * (peer_sensed.rotation * peer_rest.rotation.inverse()).scaled_axis();
+        let internal = 0.5 * (own_turn - peer_turn);
+        let shared = own_turn - internal;
+        let internal_max_rad = p.comply_max_internal_rotation_deg.to_radians();
+        let shared_max_rad = if self.pressing {
+            internal_max_rad
+        } else {
+            p.comply_max_rotation_deg.to_radians()
+        };
+        let follow = |comply: Vector3<f64>, sensed: Vector3<f64>, max_rad: f64| {
+            (comply + g * (sensed - comply)).cap_magnitude(max_rad)
+        };
+        self.comply_shared_rotation = follow(self.comply_shared_rotation, shared, shared_max_rad);
+        self.comply_internal_rotation =
+            follow(self.comply_internal_rotation, internal, internal_max_rad);
         let mut target = *rest;
         target.translation.vector +=
             Vector3::new(self.comply_xy_m.x, self.comply_xy_m.y, self.lift_m);
-        target.rotation = UnitQuaternion::from_scaled_axis(self.comply_rotation) * target.rotation;
+        target.rotation = UnitQuaternion::from_scaled_axis(
+            self.comply_shared_rotation + self.comply_internal_rotation,
+        ) * target.rotation;
         let in_chain = input.spec.ground_to_base().inverse() * target;
         // Where the target lies beyond a joint limit (the box's grasp sits at two), the arm
         // goes as far as the limits allow; the clamp judges the result like any other.

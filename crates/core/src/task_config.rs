@@ -247,8 +247,9 @@ impl TaskConfig {
 
     /// A unit's goal in a phase episode — the one definition the training tasks, evaluation and
     /// the onboard tick share: h* = `height_m`, the base `travel_m` along +X from `start` (its
-    /// pose when the episode began), and v_cmd, the transport profile's speed `phase_s` into a
-    /// transport (zero in the other phases).
+    /// pose when the episode began), v_cmd and the reference point, the transport profile's
+    /// speed and distance `phase_s` into a transport (zero speed and the goal in the other
+    /// phases), and the phase's progress over its episode length.
     pub fn phase_goal(
         &self,
         phase: Phase,
@@ -257,15 +258,19 @@ impl TaskConfig {
         travel_m: f64,
         phase_s: f64,
     ) -> PhaseGoal {
-        let speed_mps = if phase == Phase::Transport {
-            self.profile().speed_at(phase_s)
+        let (speed_mps, along_m) = if phase == Phase::Transport {
+            let profile = self.profile();
+            (profile.speed_at(phase_s), profile.travelled_at(phase_s))
         } else {
-            0.0
+            (0.0, travel_m)
         };
+        let progress = (phase_s / self.duration_s(phase)).clamp(0.0, 1.0);
         PhaseGoal {
             height_m,
             base_goal_m: Vector2::new(start.x_m + travel_m, start.y_m),
             velocity_mps: Vector2::new(speed_mps, 0.0),
+            reference_m: Vector2::new(start.x_m + along_m, start.y_m),
+            progress: if progress.is_finite() { progress } else { 0.0 },
         }
     }
 

@@ -56,7 +56,7 @@ use moonhaul_coord::{
 };
 use moonhaul_core::action::{ActionMap, ActionMapError};
 use moonhaul_core::observation::{
-    unit_observation, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
+    unit_observation, CommandState, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
 };
 use moonhaul_core::policy::{Policy, PolicyScratch};
 use moonhaul_core::scripted::{MissionPlan, PhaseScript, ScriptInput};
@@ -229,6 +229,9 @@ pub struct Onboard {
     /// U_{k-1} of this unit; `anchored` once it was set from a first reading.
     previous: UnitCommand,
     anchored: bool,
+    /// t_max of the pipeline's last step and whether it held (the observation's `pipeline.*`).
+    last_t_max: f64,
+    last_held: bool,
     /// Stamp of each peer's newest accepted state (`None`: never heard, or this unit). Its
     /// state and command go straight into `sensed` and `previous_all`.
     peer_stamp_us: Vec<Option<u64>>,
@@ -297,6 +300,8 @@ impl Onboard {
             odometry: settings.start_pose,
             previous: UnitCommand::default(),
             anchored: false,
+            last_t_max: 0.0,
+            last_held: true,
             peer_stamp_us: vec![None; n],
             reference: None,
             episode: PhaseEpisode {
@@ -498,6 +503,8 @@ impl Onboard {
         }
         let target = *self.pipeline.target();
         self.previous = issued;
+        self.last_t_max = report.map_or(0.0, |r| r.clamp.t_max);
+        self.last_held = report.is_none_or(|r| r.clamp.hold.is_some());
         // A measurement, not an action: counted on holds too, so the units' counts agree.
         // Only while placing: it costs two FK per unit.
         let press_m = if decision.phase == Phase::Place {
@@ -582,12 +589,19 @@ impl Onboard {
         let Some(reference) = &self.reference else {
             return false;
         };
-        let peer = &self.sensed[self.peer_index()];
+        let peer = self.peer_index();
+        let commands = CommandState {
+            own: self.previous,
+            peer: self.previous_all[peer],
+            last_t_max: self.last_t_max,
+            last_held: self.last_held,
+        };
         unit_observation(
             &self.spec,
             reference,
             &self.sensed[self.unit],
-            peer,
+            &self.sensed[peer],
+            &commands,
             goal,
             out,
         )
@@ -655,6 +669,7 @@ impl Onboard {
                         phase_time_s,
                         reference,
                         own,
+                        peer: &self.sensed[(self.unit + 1) % self.sensed.len()],
                         phase_start_base: &self.episode.start_base,
                         goal,
                         profile: &profile,

@@ -49,7 +49,7 @@ use moonhaul_coord::clamp::anchor_command;
 use moonhaul_coord::{ActionPipeline, Increment, PipelineInput, PipelineReport, SyncConfig};
 use moonhaul_core::action::ActionMap;
 use moonhaul_core::observation::{
-    unit_observation, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
+    unit_observation, CommandState, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
 };
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
@@ -70,8 +70,10 @@ pub use moonhaul_core::task_config::{
 /// Extra critic inputs after the actor's: true payload height error, tilt, linear and angular
 /// velocity, both grasps' force (over the fair weight share) and torque, wheel friction,
 /// payload mass, the payload's planar error to the reference in the own frame, the fraction of
-/// the episode left and whether the grasps are released.
-pub const CRITIC_EXTRA: usize = 19;
+/// the episode left, whether the grasps are released and the payload touches the ground, and how
+/// close the unit's hold rule is to its tracking stop (ticks beyond tolerance over
+/// `tracking_stop_ticks`), so the critic can predict the stop that ends an episode.
+pub const CRITIC_EXTRA: usize = 20;
 /// Width of a critic observation.
 pub const CRITIC_OBS_DIM: usize = ACTOR_OBS_DIM + CRITIC_EXTRA;
 
@@ -441,6 +443,17 @@ impl Episode {
         &self.sensed[i]
     }
 
+    /// What unit `i` knows of the commands and its pipeline: its own U_{k−1}, the peer's, and
+    /// its pipeline's last step (before the first step, a hold: a phase begins after one).
+    pub fn command_state(&self, i: usize) -> CommandState {
+        let mut state = CommandState::after_hold(self.previous[i], self.previous[1 - i]);
+        if let Some(reports) = &self.reports {
+            state.last_t_max = reports[i].clamp.t_max;
+            state.last_held = reports[i].clamp.hold.is_some();
+        }
+        state
+    }
+
     /// Unit `i`'s actor observation.
     pub fn observe(
         &self,
@@ -454,6 +467,7 @@ impl Episode {
             &self.reference[i],
             &self.sensed[i],
             &self.sensed[1 - i],
+            &self.command_state(i),
             &self.goal(task, i),
             out,
         )
@@ -505,6 +519,7 @@ impl Episode {
             1.0 - self.steps as f64 / task.max_steps as f64,
             f64::from(u8::from(self.released)),
             f64::from(u8::from(p.ground_contact)),
+            self.pipelines[i].tracking_stop_progress(),
         ];
         out[ACTOR_OBS_DIM..CRITIC_OBS_DIM].copy_from_slice(&extra);
         Ok(())
