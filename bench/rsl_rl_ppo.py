@@ -17,7 +17,7 @@ rewards followed by one `PPO.update()`. It prints one JSON line per round:
   add): all the learner does per rollout step apart from the environment.
 
 Usage: bench/rsl_rl_ppo.py [--config configs/train/lift.toml] [--rows 4096] [--steps 24]
-       [--obs 38] [--critic-obs 57] [--actions 9] [--rounds 3] [--threads 2] [--seed 0]
+       [--obs 61] [--critic-obs 81] [--actions 9] [--rounds 3] [--threads 2] [--seed 0]
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ def main() -> None:
     p.add_argument("--config", default=os.path.join(here, "..", "configs", "train", "lift.toml"))
     p.add_argument("--rows", type=int, default=4096, help="agent rows per step (2048 worlds x 2 units)")
     p.add_argument("--steps", type=int, default=24, help="rollout steps per iteration")
-    p.add_argument("--obs", type=int, default=38, help="actor observation width")
-    p.add_argument("--critic-obs", type=int, default=57, help="critic observation width")
+    p.add_argument("--obs", type=int, default=61, help="actor observation width (layout 3)")
+    p.add_argument("--critic-obs", type=int, default=81, help="critic observation width")
     p.add_argument("--actions", type=int, default=9, help="action width")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--warmup", type=int, default=1, help="untimed rounds first")

@@ -47,6 +47,9 @@ pub struct LiftTask {
     /// h* is drawn uniformly from this range, m.
     #[serde(deserialize_with = "crate::config::exact_array")]
     pub goal_height_m: [f64; 2],
+    /// Fraction of episodes aiming at the mission's height (`transport.start_height_m`, what
+    /// a deployed lift aims at) instead of a drawn h*, 0–1.
+    pub mission_goal_fraction: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -140,6 +143,12 @@ impl Validate for TaskConfig {
         })?;
         section("lift", || {
             positive("duration_s", self.lift.duration_s, MAX_EPISODE_S)?;
+            in_range(
+                "mission_goal_fraction",
+                self.lift.mission_goal_fraction,
+                0.0,
+                1.0,
+            )?;
             interval("goal_height_m", self.lift.goal_height_m, 0.0, 0.75)?;
             // A lift to 0 m is no lift: every drawn goal must raise the payload.
             positive("goal_height_m[0]", self.lift.goal_height_m[0], 0.75)

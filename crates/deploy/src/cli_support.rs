@@ -98,3 +98,26 @@ pub fn wall_us() -> u64 {
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use moonhaul_core::config::repo_file;
+
+    /// A unit refuses a policy trained on observation layout 2 (the bundled lift before layout
+    /// 3, kept as it was), naming the file and both layouts, before it flies anything.
+    #[test]
+    fn a_layout_2_policy_file_is_refused_by_name() {
+        let path = repo_file("tests/data/lift_layout2.safetensors");
+        let err = format!("{:#}", load_policy(&path, Phase::Lift).unwrap_err());
+        assert!(err.contains("lift_layout2.safetensors"), "{err}");
+        assert!(
+            err.contains("observation layout") && err.contains("version 2"),
+            "{err}"
+        );
+        assert!(err.contains(&format!(
+            "version {}",
+            moonhaul_core::observation::OBS_LAYOUT_VERSION
+        )));
+    }
+}

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo xtask cargo bench -p moonhaul-learn --bench ppo -- [--config configs/train/lift.toml]
-//!     [--rows 4096] [--steps 24] [--obs 38] [--critic-obs 57] [--actions 9]
+//!     [--rows 4096] [--steps 24] [--obs 61] [--critic-obs 81] [--actions 9]
 //!     [--rounds 3] [--warmup 1] [--threads 2] [--seed 0] [--human]
 //! ```
 //!
@@ -50,8 +50,8 @@ fn parse_args() -> Args {
         config: concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/train/lift.toml").into(),
         rows: 4096,
         steps: 24,
-        obs: 38,
-        critic_obs: 57,
+        obs: moonhaul_core::observation::ACTOR_OBS_DIM as i64,
+        critic_obs: moonhaul_sim::task::CRITIC_OBS_DIM as i64,
         actions: 9,
         rounds: 3,
         warmup: 1,

@@ -4,9 +4,11 @@
 //! evaluation (`moonhaul eval`, no libtorch) share this one definition.
 //!
 //! **Episodes** (settings in `configs/tasks.toml`):
-//! - *Lift* starts grasped with the payload resting on the ground; the goal height h* is drawn
-//!   uniformly from `lift.goal_height_m` and given to the policy, so one policy serves every
-//!   target. The bases should hold still: their goal is where they start.
+//! - *Lift* starts grasped with the payload resting on the ground; the goal height h* is the
+//!   mission's (`transport.start_height_m`, what a deployed lift aims at) in a fraction
+//!   `lift.mission_goal_fraction` of episodes, else drawn uniformly from `lift.goal_height_m`,
+//!   and given to the policy, so one policy serves every target. The bases should hold still:
+//!   their goal is where they start.
 //! - *Transport* starts with the payload held `transport.start_height_m` up and moves it
 //!   `distance_m` along +X under a trapezoidal velocity command (accelerate at `accel_mps2`,
 //!   cruise at `speed_mps`, decelerate to stop at p_B). The reward's p_B is the profile's
@@ -24,7 +26,10 @@
 //!
 //! **Sensing.** Each unit sees its encoders with Gaussian noise (`[sensing]`) and its base
 //! pose by integrating the *sensed* wheel velocities from the known start pose (wheel odometry,
-//! as onboard; wheel slip makes it drift from the truth). The actor observation is
+//! as onboard; wheel slip makes it drift from the truth). **Peers lag one tick**, as onboard
+//! (`deploy/src/tick.rs`): a unit's observation and its clamp see its own reading of this tick
+//! and the peer's state as published at the end of the peer's previous tick (with the command
+//! issued then). The actor observation is
 //! [`moonhaul_core::observation::unit_observation`] of those readings; the critic additionally
 //! sees privileged truth ([`CRITIC_EXTRA`]).
 //!
@@ -196,6 +201,9 @@ impl PhaseTask {
         let goal_height_m = match self.phase {
             // The mission lifts to the transport height and never says it is placing.
             Phase::Lift if self.mission => c.transport.start_height_m,
+            Phase::Lift if rng.random_bool(c.lift.mission_goal_fraction) => {
+                c.transport.start_height_m
+            }
             Phase::Lift => {
                 let [lo, hi] = c.lift.goal_height_m;
                 if hi > lo {
@@ -223,6 +231,7 @@ impl PhaseTask {
             payload_start,
             odometry: start_base,
             sensed: [UnitState::default(); UNITS],
+            published: [UnitState::default(); UNITS],
             // Replaced below once the first readings are sensed.
             reference: [GraspReference {
                 ee_rest_in_base: nalgebra::Isometry3::identity(),
@@ -230,13 +239,14 @@ impl PhaseTask {
                 peer_base_rest: PlanarPose::default(),
             }; UNITS],
             steps: 0,
-            touchdown: Touchdown::default(),
-            released: false,
+            touchdown: [Touchdown::default(); UNITS],
+            released: [false; UNITS],
             previous: [UnitCommand::default(); UNITS],
             pipelines: self.pipelines(scene)?,
             reports: None,
         };
         episode.sense(self, scene, state, rng, false);
+        episode.published = episode.sensed;
         episode.previous = episode.sensed.map(|s| anchor_command(&s));
         // The rest grasp is where the arms are now when the payload rests; a lifted start
         // takes it from the grasp solution (where the mission's lift began).
@@ -306,10 +316,15 @@ pub struct Episode {
     odometry: [PlanarPose; UNITS],
     /// What each unit sensed at the last tick.
     sensed: [UnitState; UNITS],
+    /// What each unit published at the end of its previous tick: its sensed state of the tick
+    /// before (peers see it one tick late).
+    published: [UnitState; UNITS],
     reference: [GraspReference; UNITS],
     steps: u64,
-    touchdown: Touchdown,
-    released: bool,
+    /// Each unit's touchdown, from its own view (its lift estimate), as onboard.
+    touchdown: [Touchdown; UNITS],
+    /// Each unit's gripper opened.
+    released: [bool; UNITS],
     /// U_{k−1} of each unit.
     previous: [UnitCommand; UNITS],
     /// Each unit's action pipeline (its clamp over both units, its hold rule).
@@ -331,10 +346,12 @@ impl Episode {
         let mut next = self.previous;
         let mut reports = [None; UNITS];
         for (i, pipeline) in self.pipelines.iter_mut().enumerate() {
+            let mut view = self.published;
+            view[i] = self.sensed[i];
             let report = pipeline
                 .step(
                     &PipelineInput {
-                        sensed: &self.sensed,
+                        sensed: &view,
                         previous: &self.previous,
                         increment: Some(Increment {
                             map: &task.map,
@@ -402,8 +419,9 @@ impl Episode {
         self.goal_height_m
     }
 
+    /// Every unit's gripper opened.
     pub fn released(&self) -> bool {
-        self.released
+        self.released.iter().all(|&r| r)
     }
 
     /// The payload's planar reference position now (the reward's p_B), world frame.
@@ -443,6 +461,11 @@ impl Episode {
         &self.sensed[i]
     }
 
+    /// What unit `i` published at the end of its previous tick: what its peer sees of it now.
+    pub fn published(&self, i: usize) -> &UnitState {
+        &self.published[i]
+    }
+
     /// What unit `i` knows of the commands and its pipeline: its own U_{k−1}, the peer's, and
     /// its pipeline's last step (before the first step, a hold: a phase begins after one).
     pub fn command_state(&self, i: usize) -> CommandState {
@@ -466,7 +489,7 @@ impl Episode {
             &scene.spec,
             &self.reference[i],
             &self.sensed[i],
-            &self.sensed[1 - i],
+            &self.published[1 - i],
             &self.command_state(i),
             &self.goal(task, i),
             out,
@@ -517,7 +540,7 @@ impl Episode {
             ex,
             ey,
             1.0 - self.steps as f64 / task.max_steps as f64,
-            f64::from(u8::from(self.released)),
+            f64::from(u8::from(self.released[i])),
             f64::from(u8::from(p.ground_contact)),
             self.pipelines[i].tracking_stop_progress(),
         ];
@@ -535,6 +558,9 @@ impl Episode {
         rng: &mut ChaCha8Rng,
         odometry: bool,
     ) {
+        if odometry {
+            self.published = self.sensed;
+        }
         for i in 0..UNITS {
             let mut sensed = encoder_reading(&state.units[i].state, &task.config.sensing, rng);
             if odometry {
@@ -570,7 +596,7 @@ impl Episode {
         // What the units published last tick, (Y_k, U_k), is what onboard touchdown reads
         // ([`moonhaul_core::touchdown`]); taken before the new readings replace Y_k, and only
         // while placing (the step is the training hot path).
-        let arms = (self.phase == Phase::Place && !self.released).then(|| {
+        let arms = (self.phase == Phase::Place && !self.released()).then(|| {
             team_arms(
                 &scene.spec,
                 (0..UNITS).map(|i| {
@@ -599,20 +625,30 @@ impl Episode {
                 self.phase_start_step = self.steps;
             }
         }
-        if let (Phase::Place, false, Some(arms)) = (self.phase, self.released, arms) {
-            // The onboard estimate, from the observation as onboard.
-            let mut obs = [0.0; ACTOR_OBS_DIM];
-            let lift_m = match self.observe(task, scene, 0, &mut obs) {
-                Ok(()) => ObservationView(&obs).lift_estimate_m(),
-                Err(_) => f64::NAN,
-            };
-            if self
-                .touchdown
-                .update(&task.config.place, &arms, lift_m, task.control_period_s)
-            {
-                env.release_grasps();
+        if let (Phase::Place, Some(arms)) = (self.phase, arms) {
+            // Each unit opens its own gripper on its own touchdown, from its own estimate (the
+            // observation's, as onboard): the two may open a tick apart.
+            let mut opened = false;
+            for i in 0..UNITS {
+                let mut obs = [0.0; ACTOR_OBS_DIM];
+                let lift_m = match self.observe(task, scene, i, &mut obs) {
+                    Ok(()) => ObservationView(&obs).lift_estimate_m(),
+                    Err(_) => f64::NAN,
+                };
+                let fired = self.touchdown[i].update(
+                    &task.config.place,
+                    &arms,
+                    lift_m,
+                    task.control_period_s,
+                );
+                if fired && !self.released[i] {
+                    env.release_grasp(i);
+                    self.released[i] = true;
+                    opened = true;
+                }
+            }
+            if opened {
                 env.state_into(scene, state);
-                self.released = true;
             }
         }
         let tracking_lost = self

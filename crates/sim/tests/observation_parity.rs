@@ -61,7 +61,8 @@ fn sim_and_onboard_observations_agree_bit_for_bit() {
                 stamp_us: tick * 20_000,
                 body: Body::Unit(UnitTick {
                     phase: Phase::Transport,
-                    state: *episode.sensed(peer),
+                    // Published at the end of the peer's previous tick: a tick old.
+                    state: *episode.published(peer),
                     command: issued[peer],
                     announce: Announcements::default(),
                 }),
