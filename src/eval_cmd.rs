@@ -18,6 +18,7 @@ use crate::eval::deployed;
 use crate::eval::episode::{read_csv, write_csv, EpisodeRow};
 use crate::eval::metrics::{self, lift_summary, place_summary, transport_summary};
 use crate::eval::plot;
+use crate::eval::progress::Progress;
 use crate::eval::rollout::{self, Case, Episodes, ScriptedSegments};
 use crate::payload_arg::{self, PayloadArg};
 use moonhaul_core::action::ActionMap;
@@ -58,6 +59,10 @@ pub struct EvalArgs {
     /// Skip the scripted-controller baseline.
     #[arg(long)]
     no_scripted: bool,
+    /// Skip the learned policies (no policy file is loaded): only the scripted controller's
+    /// rows, e.g. to evaluate the expert before any policy of this build's layout exists.
+    #[arg(long, conflicts_with = "no_scripted")]
+    no_learned: bool,
     /// Skip the deployed stack (whole missions with the phase gate and the synchronization
     /// clamp in the loop; run when every case is).
     #[arg(long)]
@@ -288,7 +293,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     }
     let mut policies = Vec::new();
     for phase in [Phase::Lift, Phase::Transport, Phase::Place] {
-        if !cases.iter().any(|c| c.phase == phase) {
+        if args.no_learned || !cases.iter().any(|c| c.phase == phase) {
             continue;
         }
         let path = policy_file(&args.policies, phase);
@@ -331,19 +336,47 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let mut report = Map::new();
     let mut table = String::new();
     let mut rollouts: Vec<(Phase, Vec<EpisodeRow>)> = Vec::new();
+    let scripted_runs = if args.no_scripted {
+        0
+    } else {
+        scripted_missions(&cases).len()
+    };
+    let deployed_runs = match &stack {
+        Some(_) if args.no_scripted || args.no_learned => 1,
+        Some(_) => 2,
+        None => 0,
+    };
+    let learned_runs = if args.no_learned { 0 } else { cases.len() };
+    let mut progress =
+        Progress::new(payloads.len() * (learned_runs + scripted_runs + deployed_runs));
     for (payload, name, model) in &payloads {
         let payload = *payload;
         if let Some(model) = model {
             scene.payloads.insert(payload, model.clone());
         }
         let mut learned = Vec::new();
-        for &case in &cases {
+        for &case in cases.iter().filter(|_| !args.no_learned) {
             let (_, task, policy) = policies
                 .iter()
                 .find(|(p, ..)| *p == case.phase)
                 .context("every phase has a policy")?;
-            let episodes = rollout::learned(&scene, task, policy, case, args.episodes_of(payload))
-                .with_context(|| format!("{name} {}", case.name()))?;
+            let run = progress.start(
+                format!("{name} {} learned", case.name()),
+                args.episodes,
+                "episodes",
+                task.max_steps(),
+                "steps",
+            );
+            let episodes = rollout::learned(
+                &scene,
+                task,
+                policy,
+                case,
+                args.episodes_of(payload),
+                run.bar(),
+            )
+            .with_context(|| format!("{name} {}", case.name()))?;
+            run.finish();
             if let Some(out) = &args.out {
                 write_episodes(&args.inputs(), &out.join(name).join(case.name()), &episodes)?;
                 // The first payload's first episode of each phase's first case is its figure.
@@ -358,7 +391,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
         let scripted = if args.no_scripted {
             None
         } else {
-            Some(scripted_cases(&scene, &plan, payload, &cases, &args)?)
+            Some(scripted_cases(
+                &scene,
+                &plan,
+                payload,
+                &cases,
+                &args,
+                &mut progress,
+            )?)
         };
         let (learned_deployed, scripted_deployed) = match &stack {
             Some(stack) => {
@@ -376,7 +416,19 @@ pub fn run(args: EvalArgs) -> Result<()> {
                         place: find(Phase::Place)?,
                     })))
                 };
-                let learned = deployed_cases(&scene, stack, &learned_policies, payload, &args, "")?;
+                let learned = if args.no_learned {
+                    None
+                } else {
+                    Some(deployed_cases(
+                        &scene,
+                        stack,
+                        &learned_policies,
+                        payload,
+                        &args,
+                        "",
+                        &mut progress,
+                    )?)
+                };
                 let scripted = if args.no_scripted {
                     None
                 } else {
@@ -388,9 +440,10 @@ pub fn run(args: EvalArgs) -> Result<()> {
                         payload,
                         &args,
                         "scripted",
+                        &mut progress,
                     )?)
                 };
-                (Some(learned), scripted)
+                (learned, scripted)
             }
             None => (None, None),
         };
@@ -410,7 +463,6 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 );
             }
         }
-        let deployed = learned_deployed.map(|d| d.cases);
         write_table(
             &mut table,
             name,
@@ -418,7 +470,8 @@ pub fn run(args: EvalArgs) -> Result<()> {
             randomize,
             &learned,
             scripted.as_deref(),
-            deployed.as_deref(),
+            learned_deployed.as_ref(),
+            scripted_deployed.as_ref(),
         )?;
         report.insert(name.clone(), entry);
     }
@@ -480,6 +533,8 @@ fn write_figures(
 struct DeployedCases {
     cases: Vec<(Case, Value)>,
     clamp: Value,
+    /// d(U_{k−1}, Y_k) over the loaded policy ticks of every mission, by phase.
+    tracking_d: deployed::TrackingD,
     max_grasp_force_n: f64,
     mean_grasp_force_n: f64,
     /// Missions per outcome ("completed", or the first stop and its phase).
@@ -511,6 +566,16 @@ fn deployed_json(episodes: usize, d: &DeployedCases) -> Value {
     v
 }
 
+/// `mean_tracking_d_by_phase`: the mean d(U_{k−1}, Y_k) of each phase's loaded ticks (null
+/// where a phase had none).
+fn tracking_d_by_phase(d: &deployed::TrackingD) -> Value {
+    json!({
+        "lift": d.mean_of(Phase::Lift),
+        "transport": d.mean_of(Phase::Transport),
+        "place": d.mean_of(Phase::Place),
+    })
+}
+
 /// The deployed stack: whole missions (lift to `transport.start_height_m`, transport, place)
 /// flown by each unit's onboard tick with `controller`; its phase segments as the cases, and
 /// what the pipeline did. `label` prefixes the CSV folder (`scripted`, or none for learned).
@@ -521,10 +586,26 @@ fn deployed_cases(
     payload: PayloadKind,
     args: &EvalArgs,
     label: &str,
+    progress: &mut Progress,
 ) -> Result<DeployedCases> {
     let name = scene.payload_name(payload);
-    let missions = deployed::missions(scene, stack, controller, args.episodes_of(payload))
-        .with_context(|| format!("deployed {label} {name}"))?;
+    let controller_name = if label.is_empty() { "learned" } else { label };
+    let run = progress.start(
+        format!("{name} {controller_name} deployed"),
+        args.episodes,
+        "missions",
+        args.episodes as u64,
+        "missions",
+    );
+    let missions = deployed::missions(
+        scene,
+        stack,
+        controller,
+        args.episodes_of(payload),
+        run.bar(),
+    )
+    .with_context(|| format!("deployed {label} {name}"))?;
+    run.finish();
     let mut cases = Vec::new();
     for case in [Case::ALL[0], Case::ALL[3], Case::ALL[4]] {
         let episodes: Vec<Vec<EpisodeRow>> = missions
@@ -565,20 +646,25 @@ fn deployed_cases(
     }
     let sum = |f: fn(&deployed::DeployedMission) -> f64| missions.iter().map(f).sum::<f64>();
     let mut tally = moonhaul_coord::ClampTally::default();
-    missions.iter().for_each(|m| tally.merge(&m.clamp));
-    let loaded = sum(|m| m.loaded_ticks as f64).max(1.0);
+    let mut tracking_d = deployed::TrackingD::default();
+    for m in &missions {
+        tally.merge(&m.clamp);
+        tracking_d.merge(&m.tracking_d);
+    }
     let n = missions.len().max(1) as f64;
     let clamp = json!({
         "mean_t_max": tally.mean_t_max().unwrap_or(0.0),
         "clamped_tick_fraction": tally.clamped_fraction().unwrap_or(0.0),
         "hold_tick_fraction": tally.hold_fraction().unwrap_or(0.0),
         "no_step_fraction": tally.no_step_fraction().unwrap_or(0.0),
-        "mean_tracking_d": sum(|m| m.tracking_d_sum) / loaded,
+        "mean_tracking_d": tracking_d.mean().unwrap_or(0.0),
+        "mean_tracking_d_by_phase": tracking_d_by_phase(&tracking_d),
         "completed_rate": missions.iter().filter(|m| m.completed).count() as f64 / n,
     });
     Ok(DeployedCases {
         cases,
         clamp,
+        tracking_d,
         max_grasp_force_n: missions
             .iter()
             .map(|m| m.max_grasp_force_n)
@@ -602,6 +688,20 @@ fn deployed_cases(
     })
 }
 
+/// The scripted missions the cases `wanted` need, as (lift case, its height): one per lift
+/// case asked for, and the 0.3 m one for transport and place.
+fn scripted_missions(wanted: &[Case]) -> Vec<(Case, f64)> {
+    Case::ALL
+        .into_iter()
+        .filter_map(|case| {
+            let h = case.goal_height_m?;
+            let needed = wanted.contains(&case)
+                || ((h - 0.3).abs() < 1e-9 && wanted.iter().any(|c| c.goal_height_m.is_none()));
+            needed.then_some((case, h))
+        })
+        .collect()
+}
+
 /// The scripted baseline: one mission per lift height, its segments as the cases.
 fn scripted_cases(
     scene: &SceneModel,
@@ -609,20 +709,21 @@ fn scripted_cases(
     payload: PayloadKind,
     wanted: &[Case],
     args: &EvalArgs,
+    progress: &mut Progress,
 ) -> Result<Vec<(Case, Value)>> {
     let mut cases = Vec::new();
-    for case in Case::ALL {
-        let Some(h) = case.goal_height_m else {
-            continue;
-        };
-        // The 0.3 m mission also yields the transport and place cases.
-        let needed = wanted.contains(&case)
-            || ((h - 0.3).abs() < 1e-9 && wanted.iter().any(|c| c.goal_height_m.is_none()));
-        if !needed {
-            continue;
-        }
-        let missions = rollout::scripted(scene, plan, h, args.episodes_of(payload))
-            .with_context(|| format!("scripted {} lift {h} m", scene.payload_name(payload)))?;
+    let name = scene.payload_name(payload);
+    for (case, h) in scripted_missions(wanted) {
+        let run = progress.start(
+            format!("{name} scripted lift {h} m"),
+            args.episodes,
+            "missions",
+            args.episodes as u64,
+            "missions",
+        );
+        let missions = rollout::scripted(scene, plan, h, args.episodes_of(payload), run.bar())
+            .with_context(|| format!("scripted {name} lift {h} m"))?;
+        run.finish();
         let pick = |f: fn(&ScriptedSegments) -> &Vec<EpisodeRow>| {
             missions.iter().map(|m| f(m).clone()).collect::<Vec<_>>()
         };
@@ -670,6 +771,10 @@ fn find_case<'a>(set: Option<&'a [(Case, Value)]>, case: &Case) -> Option<&'a Va
     set.and_then(|s| s.iter().find(|(c, _)| c == case).map(|(_, v)| v))
 }
 
+/// One payload's table: the cases' metrics per controller (the gate+clamp column is the
+/// learned policies' deployed missions), then how each controller's deployed missions ended
+/// and how far its drives trailed their commands in each phase.
+#[allow(clippy::too_many_arguments)]
 fn write_table(
     out: &mut String,
     payload: &str,
@@ -677,9 +782,11 @@ fn write_table(
     randomize: bool,
     learned: &[(Case, Value)],
     scripted: Option<&[(Case, Value)]>,
-    deployed: Option<&[(Case, Value)]>,
+    learned_deployed: Option<&DeployedCases>,
+    scripted_deployed: Option<&DeployedCases>,
 ) -> Result<()> {
     let fmt = |e: std::fmt::Error| anyhow::anyhow!("formatting the table: {e}");
+    let deployed = learned_deployed.map(|d| d.cases.as_slice());
     writeln!(
         out,
         "\n{payload} — {episodes} episodes per case, {}",
@@ -728,5 +835,80 @@ fn write_table(
             .map_err(fmt)?;
         }
     }
+    for (controller, d) in [
+        ("learned", learned_deployed),
+        ("scripted IK", scripted_deployed),
+    ] {
+        if let Some(d) = d {
+            write_deployed_outcomes(out, controller, d).map_err(fmt)?;
+        }
+    }
     Ok(())
+}
+
+/// The deployed missions of one controller below the table: completed of total, the mean
+/// d(U_{k−1}, Y_k) of each phase's loaded ticks, then every outcome with its count.
+fn write_deployed_outcomes(
+    out: &mut String,
+    controller: &str,
+    d: &DeployedCases,
+) -> std::fmt::Result {
+    let missions: usize = d.outcomes.values().sum();
+    let completed = d.outcomes.get("completed").copied().unwrap_or(0);
+    let mean = |v: Option<f64>| v.map_or("-".to_owned(), |v| format!("{v:.3}"));
+    writeln!(
+        out,
+        "gate+clamp, {controller}: {completed}/{missions} missions completed; mean \
+         d(U_{{k−1}}, Y_k) loaded: lift {}, transport {}, place {} (all {})",
+        mean(d.tracking_d.mean_of(Phase::Lift)),
+        mean(d.tracking_d.mean_of(Phase::Transport)),
+        mean(d.tracking_d.mean_of(Phase::Place)),
+        mean(d.tracking_d.mean()),
+    )?;
+    for (outcome, count) in d.outcomes.iter().filter(|(o, _)| *o != "completed") {
+        writeln!(out, "  {count:>5} × {outcome}")?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_says_how_deployed_missions_ended_and_each_phases_tracking() {
+        let mut tracking_d = deployed::TrackingD::default();
+        tracking_d.add(Phase::Lift, 0.1);
+        tracking_d.add(Phase::Transport, 0.3);
+        let d = DeployedCases {
+            cases: Vec::new(),
+            clamp: json!({}),
+            tracking_d,
+            max_grasp_force_n: 0.0,
+            mean_grasp_force_n: 0.0,
+            outcomes: [
+                ("completed".to_owned(), 8),
+                ("unit 1 stopped in transport: tracking fault".to_owned(), 2),
+            ]
+            .into(),
+            failed_episodes: vec![3, 7],
+            max_ground_offset_at_release_m: 0.0,
+            max_release_height_m: 0.0,
+        };
+        let mut out = String::new();
+        write_deployed_outcomes(&mut out, "scripted IK", &d).unwrap();
+        let lines: Vec<&str> = out.lines().collect();
+        assert_eq!(
+            lines,
+            [
+                "gate+clamp, scripted IK: 8/10 missions completed; mean d(U_{k−1}, Y_k) \
+                 loaded: lift 0.100, transport 0.300, place - (all 0.200)",
+                "      2 × unit 1 stopped in transport: tracking fault",
+            ]
+        );
+        assert_eq!(
+            tracking_d_by_phase(&tracking_d),
+            json!({"lift": 0.1, "transport": 0.3, "place": null})
+        );
+    }
 }

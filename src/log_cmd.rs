@@ -4,9 +4,11 @@
 //!
 //! A mission directory (`moonhaul mission sim --out DIR`) holds `DIR/<payload>/trial-<k>/`
 //! with `world.mcap` (the world's ground truth, like the paper's OptiTrack) and one
-//! `unit-<i>.mcap` per unit. Only `world.mcap` is read: the metrics are what an external
+//! `unit-<i>.mcap` per unit. The metrics come from `world.mcap` alone: they are what an external
 //! tracker measures, and the phase is the one the units reported to the world with their
-//! commands (unit 0's, or any unit's when unit 0 sent none that step, or the last known).
+//! commands (unit 0's, or any unit's when unit 0 sent none that step, or the last known). The
+//! unit logs, where present, add what the clamp did and why a stopped mission stopped: only a
+//! unit knows its own latched stop.
 //!
 //! # The metrics, and the choices the paper leaves open
 //!
@@ -24,7 +26,11 @@
 //! - **Phase durations** of Lift, Transport and Place, each from its first frame to the first
 //!   frame of another phase (or the end of the log).
 //! - **Completed**: the phases went Lift → Transport → Place → Idle in order; otherwise the
-//!   reason (held in a phase until the log ended, or stopped to Idle in the middle).
+//!   reason (held in a phase until the log ended, or stopped to Idle in the middle). For a
+//!   stop, the unit logs name the unit and its reason (`stop` in the JSON): the first unit that
+//!   stopped on its own while a phase ran (a stop it raised — its own fault, a stale or refused
+//!   peer, an agreement timeout — not one it heard from a peer or the operator), and what every
+//!   other unit stopped for.
 //!
 //! Per payload: mean ± sample standard deviation (n − 1; 0 for a single trial) over the trials
 //! that have the metric. Outputs `DIR/summary.json` (the `--json` output) and
@@ -45,9 +51,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use moonhaul_coord::message::{FaultKind, StopReason};
+use moonhaul_coord::HoldReason;
 use moonhaul_core::state::Phase;
 use moonhaul_deploy::mission_log::{read_unit_log_contents, read_world_log_contents, LogEnd};
-use moonhaul_deploy::record::WorldFrame;
+use moonhaul_deploy::record::{TickRecord, WorldFrame};
 use plotters::prelude::*;
 use serde::Serialize;
 
@@ -111,7 +119,9 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
                 continue;
             }
         };
-        let m = match trial_metrics(&samples) {
+        let folder = trial.log.parent().unwrap_or(Path::new("."));
+        let UnitLogs { clamp, stop } = read_unit_logs(folder, &mut unread);
+        let m = match trial_metrics(&samples, stop.as_ref()) {
             Ok(m) => m,
             Err(e) => {
                 let mut reason = format!("cannot summarize: {e:#}");
@@ -131,13 +141,12 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
             .entry(trial.payload.clone())
             .or_default()
             .push(Profile::new(&samples, &m));
-        let folder = trial.log.parent().unwrap_or(Path::new("."));
-        let clamp = ClampStats::of_trial(folder, &mut unread);
         metrics.push(TrialSummary {
             payload: trial.payload.clone(),
             trial: trial.trial,
             log,
             metrics: m,
+            stop,
             clamp,
             unread,
         });
@@ -427,8 +436,8 @@ pub struct TrialMetrics {
 }
 
 /// The trial metrics of `samples` (non-empty, time non-decreasing); an error if no unit ever
-/// reported Lift.
-fn trial_metrics(samples: &[Sample]) -> Result<TrialMetrics> {
+/// reported Lift. `stop`, from the unit logs, says why a stopped mission stopped.
+fn trial_metrics(samples: &[Sample], stop: Option<&TrialStop>) -> Result<TrialMetrics> {
     let Some(lift_at) = samples.iter().position(|s| s.phase == Phase::Lift) else {
         bail!("no unit ever reported the lift phase: the mission never started");
     };
@@ -466,26 +475,36 @@ fn trial_metrics(samples: &[Sample]) -> Result<TrialMetrics> {
     // during the placement also ends in Idle, with the grasps still closed.
     let released = samples.last().is_some_and(|s| s.released);
     let completed = starts[3].is_some() && released;
+    let why = stop.map(TrialStop::words);
     let incomplete = if completed {
         None
     } else if let (Some(at), false) = (starts[3], released) {
-        Some(format!(
-            "stopped during place at {at:.2} s (phase went to idle, grasps still closed)"
-        ))
+        Some(match &why {
+            Some(why) => format!("stopped during place at {at:.2} s, grasps still closed: {why}"),
+            None => format!(
+                "stopped during place at {at:.2} s (phase went to idle, grasps still closed)"
+            ),
+        })
     } else if let Some((from, to, at)) = broke {
-        Some(if to == Phase::Idle {
-            format!(
+        Some(match (to, &why) {
+            (Phase::Idle, Some(why)) => {
+                format!("stopped during {} at {at:.2} s: {why}", from.name())
+            }
+            (Phase::Idle, None) => format!(
                 "stopped during {} at {at:.2} s (phase went to idle)",
                 from.name()
-            )
-        } else {
-            format!("left {} for {} at {at:.2} s", from.name(), to.name())
+            ),
+            _ => format!("left {} for {} at {at:.2} s", from.name(), to.name()),
         })
     } else {
-        Some(format!(
+        let held = format!(
             "held in {} until the log ended at {end_s:.2} s",
             ORDER[stage].name()
-        ))
+        );
+        Some(match &why {
+            Some(why) => format!("{held}; {why}"),
+            None => held,
+        })
     };
 
     let mean_height = |from_s: f64, to_s: f64, include_end: bool| -> Option<f64> {
@@ -563,6 +582,10 @@ struct TrialSummary {
     log: String,
     #[serde(flatten)]
     metrics: TrialMetrics,
+    /// Why the mission stopped, from the units' logs: the first unit that stopped on its own
+    /// while a phase ran, and every unit's stop; `None` when no unit stopped (or the trial
+    /// folder has no unit logs).
+    stop: Option<TrialStop>,
     /// What the synchronization clamp did, from the units' logs (`unit-<i>.mcap` beside the
     /// world log); `None` when the trial folder has none.
     clamp: Option<ClampStats>,
@@ -592,47 +615,185 @@ struct ClampStats {
     held_fraction: f64,
 }
 
-impl ClampStats {
-    /// From the unit logs in `folder` (`None` when it has none); what of them could not be
-    /// read is added to `unread`, and an unreadable log is left out.
-    fn of_trial(folder: &Path, unread: &mut Vec<String>) -> Option<ClampStats> {
-        use moonhaul_coord::HoldReason;
-        let mut tally = moonhaul_coord::ClampTally::default();
-        let mut any = false;
-        for i in 0.. {
-            let path = folder.join(format!("unit-{i}.mcap"));
-            if !path.exists() {
-                break;
-            }
-            let contents = match read_unit_log_contents(&path) {
-                Ok(contents) => contents,
-                Err(e) => {
-                    unread.push(format!("{e}: left out of the clamp figures"));
-                    continue;
-                }
-            };
-            if let LogEnd::Truncated { file_bytes } = contents.end {
+/// What a trial's unit logs say.
+struct UnitLogs {
+    /// `None` when the trial folder has no unit log.
+    clamp: Option<ClampStats>,
+    stop: Option<TrialStop>,
+}
+
+/// Reads the unit logs of a trial folder (`unit-<i>.mcap`, from unit 0 until one is missing),
+/// one at a time; what of them could not be read is added to `unread`, and an unreadable log
+/// is left out.
+fn read_unit_logs(folder: &Path, unread: &mut Vec<String>) -> UnitLogs {
+    let mut tally = moonhaul_coord::ClampTally::default();
+    let mut any = false;
+    let mut stops = Vec::new();
+    for i in 0.. {
+        let path = folder.join(format!("unit-{i}.mcap"));
+        if !path.exists() {
+            break;
+        }
+        let contents = match read_unit_log_contents(&path) {
+            Ok(contents) => contents,
+            Err(e) => {
                 unread.push(format!(
-                    "{} ends without its footer ({file_bytes} bytes): read {} ticks",
-                    path.display(),
-                    contents.records.len()
+                    "{e}: left out of the clamp figures and the stop's reason"
                 ));
+                continue;
             }
-            any = true;
-            for r in contents.records {
-                let running = r.phase.has_policy()
-                    && matches!(r.hold, None | Some(HoldReason::NoAdmissibleStep));
-                if running {
-                    tally.record(r.t_max, r.hold);
-                }
+        };
+        if let LogEnd::Truncated { file_bytes } = contents.end {
+            unread.push(format!(
+                "{} ends without its footer ({file_bytes} bytes): read {} ticks",
+                path.display(),
+                contents.records.len()
+            ));
+        }
+        any = true;
+        for r in &contents.records {
+            let running =
+                r.phase.has_policy() && matches!(r.hold, None | Some(HoldReason::NoAdmissibleStep));
+            if running {
+                tally.record(r.t_max, r.hold);
             }
         }
-        any.then(|| ClampStats {
+        stops.extend(UnitStop::first(i, &contents.records));
+    }
+    UnitLogs {
+        clamp: any.then(|| ClampStats {
             policy_ticks: tally.ticks,
             mean_t_max: tally.mean_t_max().unwrap_or(0.0),
             clamped_fraction: tally.clamped_fraction().unwrap_or(0.0),
             held_fraction: tally.no_step_fraction().unwrap_or(0.0),
+        }),
+        stop: TrialStop::of(stops),
+    }
+}
+
+/// One unit's first safety stop while a phase ran, from its log.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+struct UnitStop {
+    unit: usize,
+    /// The phase it was in when it stopped.
+    phase: Phase,
+    /// The unit's clock at the stop (the world's time in a simulated mission), µs.
+    stamp_us: u64,
+    /// The stop as the log records it (the tick's `hold`, `safety_stop`).
+    cause: StopReason,
+    /// The latched fault's description (the record's `fault`), for a stop on the unit's own
+    /// fault.
+    fault: Option<String>,
+    /// The stop in words, e.g. "latched a tracking fault (drives did not reach …)" or
+    /// "stopped because unit 1 announced a stop".
+    reason: String,
+}
+
+impl UnitStop {
+    /// The first tick of `records` (unit `unit`'s log) that holds on a safety stop while the
+    /// unit was in a phase, or stopped out of one (the stop's own tick may already be Idle).
+    /// Stops in Idle (waiting for a peer before the start) are not the mission's.
+    fn first(unit: usize, records: &[TickRecord]) -> Option<UnitStop> {
+        let mut last = Phase::Idle;
+        for (k, r) in records.iter().enumerate() {
+            if let Some(HoldReason::SafetyStop(cause)) = r.hold {
+                let phase = if r.phase == Phase::Idle {
+                    last
+                } else {
+                    r.phase
+                };
+                if phase != Phase::Idle {
+                    // The fault is recorded from the tick it latched on; it may be this one's
+                    // successor when the stop came first.
+                    let fault = matches!(cause, StopReason::Fault(_))
+                        .then(|| records[k..].iter().find_map(|r| r.fault.as_deref()))
+                        .flatten()
+                        .map(str::to_owned);
+                    return Some(UnitStop {
+                        unit,
+                        phase,
+                        stamp_us: r.stamp_us,
+                        cause,
+                        reason: stop_words(cause, fault.as_deref()),
+                        fault,
+                    });
+                }
+            }
+            last = r.phase;
+        }
+        None
+    }
+}
+
+/// A stop in words, as the unit that took it would say it (after "unit N ").
+fn stop_words(cause: StopReason, fault: Option<&str>) -> String {
+    match cause {
+        StopReason::Fault(kind) => {
+            let kind = match kind {
+                FaultKind::Drive => "drive",
+                FaultKind::Sensor => "sensor",
+                FaultKind::Policy => "policy",
+                FaultKind::Tracking => "tracking",
+            };
+            match fault {
+                Some(what) => format!("latched a {kind} fault ({what})"),
+                None => format!("latched a {kind} fault"),
+            }
+        }
+        StopReason::Operator => "stopped on the operator's command".into(),
+        StopReason::PeerStop { unit } => format!("stopped because unit {unit} announced a stop"),
+        StopReason::PeerStale { unit } => format!(
+            "stopped because unit {unit} went stale (nothing fresh from it within the \
+             staleness bound)"
+        ),
+        StopReason::PeerRejected { unit } => format!(
+            "stopped because unit {unit}'s messages were refused (out of physical bounds or \
+             not finite)"
+        ),
+        StopReason::PhaseTimeout => {
+            "stopped because a phase change stayed pending past the agreement window".into()
+        }
+        StopReason::PhaseMismatch { unit } => {
+            format!("stopped because unit {unit} reported a phase the barrier cannot explain")
+        }
+    }
+}
+
+/// Why a trial's mission stopped: the unit that stopped first on its own (a stop it raised,
+/// not one it heard from a peer or the operator, which name their origin anyway), else the
+/// first to stop; and each unit's own first stop.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+struct TrialStop {
+    #[serde(flatten)]
+    first: UnitStop,
+    /// Every unit's first stop (the first's included), in unit order.
+    units: Vec<UnitStop>,
+}
+
+impl TrialStop {
+    /// From each unit's first stop (in unit order); `None` when no unit stopped.
+    fn of(stops: Vec<UnitStop>) -> Option<TrialStop> {
+        let earliest = |raised: bool| {
+            stops
+                .iter()
+                .filter(|s| !raised || s.cause.announce())
+                .min_by_key(|s| (s.stamp_us, s.unit))
+        };
+        let first = earliest(true).or_else(|| earliest(false))?.clone();
+        Some(TrialStop {
+            first,
+            units: stops,
         })
+    }
+
+    /// "unit 1 latched a tracking fault (…); unit 0 stopped because unit 1 announced a stop":
+    /// the first stop, then the others.
+    fn words(&self) -> String {
+        let mut words = format!("unit {} {}", self.first.unit, self.first.reason);
+        for s in self.units.iter().filter(|s| s.unit != self.first.unit) {
+            let _ = write!(words, "; unit {} {}", s.unit, s.reason);
+        }
+        words
     }
 }
 
@@ -1140,7 +1301,7 @@ mod tests {
                 0.008
             }
         };
-        let m = trial_metrics(&trial(&MISSION, height)).unwrap();
+        let m = trial_metrics(&trial(&MISSION, height), None).unwrap();
         assert!(m.completed && m.incomplete.is_none(), "{m:?}");
         assert!(close(m.steady_height_mm.unwrap(), 250.0, 1e-9), "{m:?}");
         // 0.95 × 0.25 m is reached 0.95 × 25 s = 23.75 s into the ramp (the 20 ms grid).
@@ -1160,7 +1321,7 @@ mod tests {
     fn steady_height_leaves_out_the_first_quarter_of_transport() {
         // Transport 32–72 s: heights 0.1 m for the first 10 s, 0.3 m after.
         let height = |t: f64| if t < 42.0 { 0.1 } else { 0.3 };
-        let m = trial_metrics(&trial(&MISSION, height)).unwrap();
+        let m = trial_metrics(&trial(&MISSION, height), None).unwrap();
         assert!(close(m.steady_height_mm.unwrap(), 300.0, 1e-9), "{m:?}");
     }
 
@@ -1170,7 +1331,7 @@ mod tests {
         for s in &mut samples {
             s.released = false;
         }
-        let m = trial_metrics(&samples).unwrap();
+        let m = trial_metrics(&samples, None).unwrap();
         assert!(!m.completed, "{m:?}");
         let why = m.incomplete.as_deref().unwrap();
         assert!(
@@ -1186,7 +1347,8 @@ mod tests {
             (20.0, Phase::Lift),
             (60.0, Phase::Transport),
         ];
-        let m = trial_metrics(&trial(&segments, |t| if t < 1.0 { 0.0 } else { 0.2 })).unwrap();
+        let m =
+            trial_metrics(&trial(&segments, |t| if t < 1.0 { 0.0 } else { 0.2 }), None).unwrap();
         assert!(!m.completed, "{m:?}");
         let why = m.incomplete.as_deref().unwrap();
         assert!(why.contains("held in transport"), "{why}");
@@ -1202,7 +1364,7 @@ mod tests {
     #[test]
     fn a_stop_in_lift_is_reported_and_has_no_steady_height() {
         let segments = [(1.0, Phase::Idle), (10.0, Phase::Lift), (20.0, Phase::Idle)];
-        let m = trial_metrics(&trial(&segments, |_| 0.05)).unwrap();
+        let m = trial_metrics(&trial(&segments, |_| 0.05), None).unwrap();
         assert!(!m.completed);
         let why = m.incomplete.as_deref().unwrap();
         assert!(why.contains("stopped during lift at 10.00 s"), "{why}");
@@ -1213,10 +1375,155 @@ mod tests {
         );
     }
 
+    /// A unit's log: `(stamp µs, phase, hold, fault)` per tick.
+    fn unit_log(
+        unit: usize,
+        ticks: &[(u64, Phase, Option<StopReason>, Option<&'static str>)],
+    ) -> Vec<TickRecord> {
+        ticks
+            .iter()
+            .map(|&(stamp_us, phase, stop, fault)| {
+                let mut r = TickRecord::for_team(2);
+                r.unit = unit;
+                r.stamp_us = stamp_us;
+                r.phase = phase;
+                r.hold = stop.map(HoldReason::SafetyStop);
+                r.fault = fault.map(Into::into);
+                r
+            })
+            .collect()
+    }
+
+    const TRACKING: &str = "drives did not reach their command within hold.tracking_stop_ticks";
+
+    /// Unit 1 latches a tracking fault in transport (its description recorded from the next
+    /// tick); unit 0, which waited for its peer before the start, stops on unit 1's
+    /// announcement a tick later.
+    fn tracking_stop_logs() -> [Vec<TickRecord>; 2] {
+        let stale = Some(StopReason::PeerStale { unit: 1 });
+        let heard = Some(StopReason::PeerStop { unit: 1 });
+        let own = Some(StopReason::Fault(FaultKind::Tracking));
+        [
+            unit_log(
+                0,
+                &[
+                    (0, Phase::Idle, stale, None),
+                    (20, Phase::Idle, None, None),
+                    (40, Phase::Lift, None, None),
+                    (60, Phase::Transport, None, None),
+                    (80, Phase::Transport, None, None),
+                    (100, Phase::Idle, heard, None),
+                ],
+            ),
+            unit_log(
+                1,
+                &[
+                    (40, Phase::Lift, None, None),
+                    (60, Phase::Transport, None, None),
+                    (80, Phase::Transport, own, None),
+                    (100, Phase::Idle, own, Some(TRACKING)),
+                ],
+            ),
+        ]
+    }
+
+    #[test]
+    fn a_stop_names_the_unit_that_raised_it_and_what_the_others_heard() {
+        let [u0, u1] = tracking_stop_logs();
+        let stops = [UnitStop::first(0, &u0), UnitStop::first(1, &u1)];
+        // The wait for a peer before the start is not the mission's stop.
+        let heard = stops[0].clone().unwrap();
+        assert_eq!((heard.phase, heard.stamp_us), (Phase::Transport, 100));
+        let stop = TrialStop::of(stops.into_iter().flatten().collect()).unwrap();
+        assert_eq!(
+            (stop.first.unit, stop.first.phase, stop.first.stamp_us),
+            (1, Phase::Transport, 80)
+        );
+        assert_eq!(stop.first.fault.as_deref(), Some(TRACKING));
+        assert_eq!(
+            stop.words(),
+            format!(
+                "unit 1 latched a tracking fault ({TRACKING}); unit 0 stopped because unit 1 \
+                 announced a stop"
+            )
+        );
+        let json = serde_json::to_value(&stop).unwrap();
+        assert_eq!(json["unit"], 1);
+        assert_eq!(json["phase"], "transport");
+        assert_eq!(json["cause"]["fault"], "tracking");
+        assert_eq!(json["units"][0]["cause"]["peer_stop"]["unit"], 1);
+
+        // The world log saw the team go from transport to idle.
+        let mission = [
+            (1.0, Phase::Idle),
+            (10.0, Phase::Lift),
+            (20.0, Phase::Transport),
+            (25.0, Phase::Idle),
+        ];
+        let m = trial_metrics(&trial(&mission, |_| 0.2), Some(&stop)).unwrap();
+        let why = m.incomplete.unwrap();
+        assert!(
+            why.starts_with("stopped during transport at 20.00 s: unit 1 latched a tracking fault")
+                && why.ends_with("unit 0 stopped because unit 1 announced a stop"),
+            "{why}"
+        );
+        // A stop in place: idle with the grasps closed.
+        let mut samples = trial(&MISSION, |_| 0.2);
+        samples.iter_mut().for_each(|s| s.released = false);
+        let why = trial_metrics(&samples, Some(&stop))
+            .unwrap()
+            .incomplete
+            .unwrap();
+        assert!(
+            why.starts_with("stopped during place at 82.00 s, grasps still closed: unit 1 latched"),
+            "{why}"
+        );
+    }
+
+    #[test]
+    fn a_stop_only_heard_is_named_when_its_origin_left_no_log() {
+        // Unit 0's peer went silent (its log is lost): unit 0 raised the stop itself. A peer's
+        // stop heard earlier on a skewed clock does not outrank it either.
+        let stale = StopReason::PeerStale { unit: 1 };
+        let raised = unit_log(
+            0,
+            &[
+                (40, Phase::Lift, None, None),
+                (60, Phase::Idle, Some(stale), None),
+            ],
+        );
+        let heard = unit_log(
+            2,
+            &[
+                (40, Phase::Lift, None, None),
+                (
+                    50,
+                    Phase::Idle,
+                    Some(StopReason::PeerStop { unit: 0 }),
+                    None,
+                ),
+            ],
+        );
+        let stops = [UnitStop::first(0, &raised), UnitStop::first(2, &heard)];
+        let stop = TrialStop::of(stops.iter().flatten().cloned().collect()).unwrap();
+        assert_eq!((stop.first.unit, stop.first.cause), (0, stale));
+        assert!(stop.first.reason.contains("unit 1 went stale"), "{stop:?}");
+        // Only a heard stop: it is the one named.
+        let stop = TrialStop::of(vec![stops[1].clone().unwrap()]).unwrap();
+        assert_eq!(
+            stop.words(),
+            "unit 2 stopped because unit 0 announced a stop"
+        );
+        // No stop while a phase ran: nothing to name.
+        let waiting = unit_log(0, &[(0, Phase::Idle, Some(stale), None)]);
+        assert_eq!(UnitStop::first(0, &waiting), None);
+        assert_eq!(TrialStop::of(Vec::new()), None);
+    }
+
     #[test]
     fn a_trial_without_lift_is_an_error() {
         let samples = trial(&[(5.0, Phase::Idle)], |_| 0.0);
-        let e = trial_metrics(&samples).unwrap_err().to_string();
+        let e = trial_metrics(&samples, None).unwrap_err().to_string();
         assert!(e.contains("no unit ever reported the lift phase"), "{e}");
     }
 

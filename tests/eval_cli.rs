@@ -94,8 +94,18 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
         "--no-scripted",
         "--json",
     ];
-    let mut reported: serde_json::Value =
-        serde_json::from_str(&stdout(&moonhaul(&[&args[..], &["--out", o]].concat()))).unwrap();
+    let run = moonhaul(&[&args[..], &["--out", o]].concat());
+    // Stdout is the JSON alone; the progress goes to stderr, a line per finished run (5 cases,
+    // then the deployed missions) when stderr is not a terminal.
+    let mut reported: serde_json::Value = serde_json::from_str(&stdout(&run)).unwrap();
+    let progress = String::from_utf8_lossy(&run.stderr);
+    for line in [
+        "eval: [1/6] box lift-0.3 learned: 2 episodes in ",
+        "eval: [5/6] box place learned: 2 episodes in ",
+        "eval: [6/6] box learned deployed: 2 missions in ",
+    ] {
+        assert!(progress.contains(line), "no {line:?} in {progress}");
+    }
     let box_ = &reported["box"];
     assert_eq!(box_["episodes"], 2);
     for h in ["0.3", "0.5", "0.75"] {
@@ -141,10 +151,28 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
     assert_eq!(deployed["clamp"]["completed_rate"], 0.0);
     assert_eq!(deployed["clamp"]["no_step_fraction"], 0.0);
     assert!(deployed["clamp"]["mean_t_max"].as_f64().unwrap() > 0.99);
-    assert!(deployed["clamp"]["mean_tracking_d"].as_f64().unwrap() < 0.2);
+    let mean_d = deployed["clamp"]["mean_tracking_d"].as_f64().unwrap();
+    assert!(mean_d < 0.2);
+    // Per phase: every loaded tick was in lift; the phases never reached have none.
+    let by_phase = &deployed["clamp"]["mean_tracking_d_by_phase"];
+    assert_eq!(by_phase["lift"].as_f64(), Some(mean_d), "{by_phase}");
+    assert!(
+        by_phase["transport"].is_null() && by_phase["place"].is_null(),
+        "{by_phase}"
+    );
     assert!(deployed["max_grasp_force_n"].as_f64().unwrap() > 0.0);
     assert!(out.join("box/deployed/lift-0.3/000.csv").is_file());
     assert_eq!(recomputed, reported);
+    // The table says the same below the metrics, and stdout holds nothing else.
+    let table_args: Vec<&str> = args.iter().copied().filter(|a| *a != "--json").collect();
+    let table = stdout(&moonhaul(&table_args));
+    let by_phase = format!(
+        "gate+clamp, learned: 0/2 missions completed; mean d(U_{{k−1}}, Y_k) loaded: lift {:.3}, \
+         transport -, place - (all {:.3})",
+        mean_d, mean_d
+    );
+    assert!(table.contains(&by_phase), "no {by_phase:?} in\n{table}");
+    assert!(!table.contains("eval: "), "{table}");
     // A second run into the same folder would replace the first one's files: only with
     // --force.
     let err = fails_naming(&[&args[..], &["--out", o]].concat(), "--force");

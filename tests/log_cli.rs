@@ -1,6 +1,7 @@
 //! `moonhaul log summary` on synthetic mission directories written with the world-log writer:
 //! two payloads, two trials each, with known heights and phase timing; an incomplete trial;
-//! frames stamped far beyond the mission; logs cut short at many offsets; errors.
+//! frames stamped far beyond the mission; logs cut short at many offsets; errors. And on a
+//! simulated mission with a fault drill: the summary names the unit that stopped and why.
 
 mod common;
 
@@ -356,4 +357,55 @@ fn a_log_cut_anywhere_summarizes_all_but_its_last_second() {
         reason.contains("trial-6") && reason.contains("empty log"),
         "{reason}"
     );
+}
+
+/// A simulated mission (world and unit processes) in which unit 1's controller output turns
+/// non-finite (`--unit-arg 1=--inject=policy-nan@2`; sticky, so it trips on the first
+/// controller tick after 2 s whenever the start comes): unit 1 latches a policy fault, unit 0
+/// stops on its announcement, and the summary says so, by unit, in text and JSON.
+#[test]
+fn summary_of_a_fault_drill_names_the_unit_and_its_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("mission");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_moonhaul"));
+    cmd.args(["mission", "sim", "--payload", "box", "--trials", "1"])
+        .args(["--controller", "scripted", "--max-seconds", "10"])
+        .args(["--unit-arg", "1=--inject=policy-nan@2", "--out"])
+        .arg(&out)
+        .env("MOONHAUL_UNIT_BIN", common::unit_bin())
+        .current_dir(repo_file(""))
+        .stdin(std::process::Stdio::null());
+    let output = common::run_bounded(&mut cmd, std::time::Duration::from_secs(400));
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stdout}\n{stderr}");
+    let expected = "unit 1 latched a policy fault (non-finite or failed controller output)";
+    assert!(stdout.contains(expected), "{stdout}");
+
+    let summary = summary_json(&out);
+    let trial = &summary["trials"][0];
+    assert_eq!(trial["completed"], false, "{trial}");
+    let why = trial["incomplete"].as_str().unwrap();
+    assert!(
+        why.starts_with("stopped during ") && why.contains(&format!(": {expected}")),
+        "{why}"
+    );
+    assert!(
+        why.contains("unit 0 stopped because unit 1 announced a stop"),
+        "{why}"
+    );
+    let stop = &trial["stop"];
+    assert_eq!(stop["unit"], 1, "{stop}");
+    assert_eq!(stop["cause"]["fault"], "policy", "{stop}");
+    assert!(
+        ["lift", "transport", "place"].contains(&stop["phase"].as_str().unwrap()),
+        "{stop}"
+    );
+    assert!(
+        stop["reason"].as_str().unwrap().contains("policy fault"),
+        "{stop}"
+    );
+    let heard = &stop["units"][0];
+    assert_eq!(heard["unit"], 0, "{stop}");
+    assert_eq!(heard["cause"]["peer_stop"]["unit"], 1, "{stop}");
 }

@@ -17,6 +17,7 @@
 //! come from every unit's tick records.
 
 use anyhow::{Context, Result};
+use indicatif::ProgressBar;
 use moonhaul_coord::message::{Body, Envelope, OperatorCommand, RejectCounts, Sender, StopReason};
 use moonhaul_coord::{ClampTally, HoldReason, TeamSettings};
 use moonhaul_core::state::Phase;
@@ -52,9 +53,8 @@ pub struct DeployedMission {
     pub segments: ScriptedSegments,
     /// What the clamp issued on the unit ticks in Lift, Transport or Place (both units).
     pub clamp: ClampTally,
-    /// Sum and count of d(U_{k−1}, Y_k) over loaded policy ticks (grasp closed).
-    pub tracking_d_sum: f64,
-    pub loaded_ticks: u64,
+    /// d(U_{k−1}, Y_k) over loaded policy ticks (grasp closed), by phase.
+    pub tracking_d: TrackingD,
     /// Largest and mean grasp force (simulator truth) while grasped, N.
     pub max_grasp_force_n: f64,
     pub mean_grasp_force_n: f64,
@@ -71,12 +71,67 @@ pub struct DeployedMission {
     pub outcome: String,
 }
 
-/// Runs `run.count` seeded missions; `controller()` builds each unit's controller.
+/// Sums and counts of d(U_{k−1}, Y_k), the unit's own tracking distance, over loaded policy
+/// ticks, per committed phase of the unit's tick (Lift, Transport, Place): which phase's drives
+/// lag their commands, not only that some do.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TrackingD {
+    sum: [f64; 3],
+    ticks: [u64; 3],
+}
+
+impl TrackingD {
+    /// The slot of a policy phase; `None` for Idle.
+    fn slot(phase: Phase) -> Option<usize> {
+        match phase {
+            Phase::Lift => Some(0),
+            Phase::Transport => Some(1),
+            Phase::Place => Some(2),
+            Phase::Idle => None,
+        }
+    }
+
+    /// Counts `d` of a tick committed to `phase` (Idle ticks run no policy: ignored).
+    pub fn add(&mut self, phase: Phase, d: f64) {
+        if let Some(k) = Self::slot(phase) {
+            self.sum[k] += d;
+            self.ticks[k] += 1;
+        }
+    }
+
+    pub fn merge(&mut self, other: &TrackingD) {
+        for k in 0..3 {
+            self.sum[k] += other.sum[k];
+            self.ticks[k] += other.ticks[k];
+        }
+    }
+
+    /// Loaded ticks in every phase.
+    pub fn ticks(&self) -> u64 {
+        self.ticks.iter().sum()
+    }
+
+    /// The mean over every phase's ticks; `None` without any.
+    pub fn mean(&self) -> Option<f64> {
+        let n = self.ticks();
+        (n > 0).then(|| self.sum.iter().sum::<f64>() / n as f64)
+    }
+
+    /// The mean over `phase`'s ticks; `None` without any (or for Idle).
+    pub fn mean_of(&self, phase: Phase) -> Option<f64> {
+        let k = Self::slot(phase)?;
+        (self.ticks[k] > 0).then(|| self.sum[k] / self.ticks[k] as f64)
+    }
+}
+
+/// Runs `run.count` seeded missions; `controller()` builds each unit's controller. `progress`
+/// advances by one per finished mission (from the batch's threads).
 pub fn missions(
     scene: &SceneModel,
     stack: &Stack,
     controller: &(dyn Fn() -> Result<Controller> + Sync),
     run: Episodes,
+    progress: &ProgressBar,
 ) -> Result<Vec<DeployedMission>> {
     let options = EnvOptions {
         randomize: run.randomize,
@@ -206,6 +261,7 @@ pub fn missions(
             "ended without releasing every grasp".into()
         };
         *slot = Some(mission.finish());
+        progress.inc(1);
         Ok(())
     })?;
     Ok(work.into_iter().filter_map(|(_, m)| m).collect())
@@ -216,8 +272,7 @@ pub fn missions(
 struct Tally {
     segments: Option<ScriptedSegments>,
     clamp: ClampTally,
-    tracking_d_sum: f64,
-    loaded_ticks: u64,
+    tracking_d: TrackingD,
     force_sum_n: f64,
     force_samples: u64,
     max_grasp_force_n: f64,
@@ -255,8 +310,7 @@ impl Tally {
         }
         self.clamp.record(r.t_max, r.hold);
         if let (true, Some(d)) = (grasped, r.tracking_d) {
-            self.tracking_d_sum += d;
-            self.loaded_ticks += 1;
+            self.tracking_d.add(r.phase, d);
         }
     }
 
@@ -318,8 +372,7 @@ impl Tally {
                 place: Vec::new(),
             }),
             clamp: self.clamp,
-            tracking_d_sum: self.tracking_d_sum,
-            loaded_ticks: self.loaded_ticks,
+            tracking_d: self.tracking_d,
             max_grasp_force_n: self.max_grasp_force_n,
             mean_grasp_force_n: if self.force_samples > 0 {
                 self.force_sum_n / self.force_samples as f64
@@ -343,6 +396,48 @@ mod tests {
     use moonhaul_core::task_config::TaskConfig;
     use moonhaul_deploy::unit_config::UnitConfig;
     use moonhaul_sim::{PayloadKind, SimConfig};
+
+    /// d(U_{k−1}, Y_k) is pooled by the phase of each unit's own tick record: only loaded
+    /// ticks count, Idle never does, and missions merge by phase.
+    #[test]
+    fn tracking_d_is_averaged_per_phase_over_loaded_ticks() {
+        let mut tally = Tally::default();
+        let mut r = TickRecord::for_team(UNITS);
+        let ticks = [
+            (0, Phase::Lift, true, Some(0.2)),
+            (1, Phase::Lift, true, Some(0.4)),
+            // Not grasped yet: the drives carry no load.
+            (0, Phase::Lift, false, Some(5.0)),
+            // The pipeline did not run.
+            (1, Phase::Transport, true, None),
+            (0, Phase::Transport, true, Some(0.1)),
+            (1, Phase::Idle, true, Some(9.0)),
+        ];
+        for (unit, phase, grasped, d) in ticks {
+            r.unit = unit;
+            r.phase = phase;
+            r.tracking_d = d;
+            tally.unit_tick(unit, &r, grasped);
+        }
+        let d = tally.finish().tracking_d;
+        let close = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() < 1e-12);
+        assert!(close(d.mean_of(Phase::Lift), 0.3), "{d:?}");
+        assert!(close(d.mean_of(Phase::Transport), 0.1), "{d:?}");
+        assert_eq!(d.mean_of(Phase::Place), None);
+        assert_eq!(d.mean_of(Phase::Idle), None);
+        assert!(close(d.mean(), 0.7 / 3.0), "{d:?}");
+        assert_eq!(d.ticks(), 3);
+
+        let mut place = TrackingD::default();
+        place.add(Phase::Place, 0.6);
+        place.add(Phase::Lift, 0.6);
+        let mut pooled = d;
+        pooled.merge(&place);
+        assert!(close(pooled.mean_of(Phase::Lift), 1.2 / 3.0), "{pooled:?}");
+        assert!(close(pooled.mean_of(Phase::Place), 0.6), "{pooled:?}");
+        assert!(close(pooled.mean(), 1.9 / 5.0), "{pooled:?}");
+        assert_eq!(TrackingD::default().mean(), None);
+    }
 
     /// The scripted controller through the whole deployed stack, on randomized terrain: the
     /// goal's ground lies a centimetre or two above or below the start's. Higher, a placement
@@ -368,7 +463,8 @@ mod tests {
             seed: 1000,
             threads: 0,
         };
-        let missions = missions(&scene, &stack, &|| Ok(Controller::Scripted(plan)), run).unwrap();
+        let scripted = || Ok(Controller::Scripted(plan));
+        let missions = missions(&scene, &stack, &scripted, run, &ProgressBar::hidden()).unwrap();
         let outcomes: Vec<&str> = missions.iter().map(|m| m.outcome.as_str()).collect();
         // The bar of `moonhaul eval` (measured over 100 missions in the README) less one.
         let completed = outcomes.iter().filter(|o| **o == "completed").count();

@@ -5,6 +5,7 @@
 //! becomes rows of [`EpisodeRow`].
 
 use anyhow::{Context, Result};
+use indicatif::ProgressBar;
 use moonhaul_core::observation::ACTOR_OBS_DIM;
 use moonhaul_core::policy::{Policy, PolicyScratch};
 use moonhaul_core::state::{Phase, UNIT_ACTION_DIM};
@@ -119,13 +120,15 @@ struct Slot {
 }
 
 /// Runs the episodes of `case` with `policy` and returns each episode's rows (cut at a
-/// termination or the time limit).
+/// termination or the time limit). `progress` counts the control steps of the batch (its
+/// length: `task.max_steps()`).
 pub fn learned(
     scene: &SceneModel,
     task: &PhaseTask,
     policy: &Policy,
     case: Case,
     run: Episodes,
+    progress: &ProgressBar,
 ) -> Result<Vec<Vec<EpisodeRow>>> {
     let options = task.env_options(run.randomize, Some(run.payload));
     let mut batch = BatchEnv::new(scene.clone(), run.count, run.seed, options, run.threads)?;
@@ -146,17 +149,20 @@ pub fn learned(
         });
     }
     let steps = task.max_steps();
-    for _ in 0..steps {
+    for step in 1..=steps {
         batch.for_each_with(&mut slots, |scene, env, state, slot| {
             if slot.done {
                 return Ok(());
             }
             step_with_policy(task, policy, scene, env, state, slot)
         })?;
+        // The worlds step together, so the time left is in steps, not in episodes done.
+        progress.set_position(step);
         if slots.iter().all(|s| s.done) {
             break;
         }
     }
+    progress.set_position(steps);
     Ok(slots.into_iter().map(|s| s.rows).collect())
 }
 
@@ -196,12 +202,14 @@ pub struct ScriptedSegments {
     pub place: Vec<EpisodeRow>,
 }
 
-/// Runs seeded scripted missions lifting to `lift_m`.
+/// Runs seeded scripted missions lifting to `lift_m`; `progress` advances by one per finished
+/// mission (from the batch's threads).
 pub fn scripted(
     scene: &SceneModel,
     plan: &MissionPlan,
     lift_m: f64,
     run: Episodes,
+    progress: &ProgressBar,
 ) -> Result<Vec<ScriptedSegments>> {
     let plan = MissionPlan {
         lift_height_m: lift_m,
@@ -243,6 +251,7 @@ pub fn scripted(
             ));
         })?;
         *slot = Some(segments);
+        progress.inc(1);
         Ok::<_, moonhaul_sim::SimError>(())
     })?;
     Ok(slots.into_iter().flatten().collect())
