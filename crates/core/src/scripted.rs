@@ -524,6 +524,101 @@ mod tests {
         }
     }
 
+    /// Arm joints whose end effector is `rest` (in the base frame) turned by `turn` about the
+    /// base's axes.
+    fn turned(spec: &UnitSpec, q_rest: &[f64; 7], turn: Vector3<f64>) -> [f64; 7] {
+        let mut target = ee_in_base(spec, q_rest).unwrap();
+        target.rotation = UnitQuaternion::from_scaled_axis(turn) * target.rotation;
+        let in_chain = spec.ground_to_base().inverse() * target;
+        ik::solve(&spec.arm, &in_chain, q_rest, &IkSettings::default()).unwrap()
+    }
+
+    /// Where the script's commands settle against an arm the chain holds turned by
+    /// `own_turn` while the peer's is turned by `peer_turn` (each about its own base axes):
+    /// the commanded attitude's angle from the rest grasp, degrees.
+    fn settled_command_deg(own_turn: Vector3<f64>, peer_turn: Vector3<f64>) -> f64 {
+        let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
+        let plan = MissionPlan::shipped().unwrap();
+        let q_rest = [0.3, 0.5, -0.1, 1.2, 0.0, 0.7, 0.1];
+        let at = |x: f64, y: f64, yaw: f64, q: [f64; 7]| {
+            let mut s = UnitState {
+                base_pose: PlanarPose {
+                    x_m: x,
+                    y_m: y,
+                    yaw_rad: yaw,
+                },
+                ..Default::default()
+            };
+            s.arm.position_rad = q;
+            s
+        };
+        let own_rest = at(0.0, -0.8, 0.0, q_rest);
+        let peer_rest = at(0.0, 0.8, std::f64::consts::PI, q_rest);
+        let reference = GraspReference::capture(&spec, &own_rest, &peer_rest).unwrap();
+        let own = at(0.0, -0.8, 0.0, turned(&spec, &q_rest, own_turn));
+        let peer = at(
+            0.0,
+            0.8,
+            std::f64::consts::PI,
+            turned(&spec, &q_rest, peer_turn),
+        );
+        let mut script = PhaseScript::new(plan);
+        let mut previous = UnitCommand {
+            arm_position_rad: q_rest,
+            ..Default::default()
+        };
+        for tick in 0..300 {
+            let input = ScriptInput {
+                spec: &spec,
+                phase: Phase::Lift,
+                phase_time_s: 10.0 + tick as f64 * 0.02,
+                reference: &reference,
+                own: &own,
+                peer: &peer,
+                phase_start_base: &own_rest.base_pose,
+                goal: &PhaseGoal::default(),
+                profile: &VelocityProfile {
+                    distance_m: 1.0,
+                    speed_mps: 0.2,
+                    accel_mps2: 0.2,
+                },
+                previous: &previous,
+            };
+            previous = script.command(&input).unwrap();
+        }
+        let commanded = ee_in_base(&spec, &previous.arm_position_rad).unwrap();
+        let rest = reference.ee_rest_in_base;
+        (commanded.rotation * rest.rotation.inverse())
+            .angle()
+            .to_degrees()
+    }
+
+    /// The two arms' views of one payload's attitude differ by the bases' unmeasured tilt: a
+    /// wrist follows its half of the disagreement beyond `comply_max_rotation_deg` (it would
+    /// fight the other wrist through the payload), while a tip both arms see — the payload's
+    /// own weight — is followed only up to that bound.
+    #[test]
+    fn the_wrists_follow_their_disagreement_and_resist_a_shared_tip() {
+        let plan = MissionPlan::shipped().unwrap();
+        let roll = Vector3::new(8f64.to_radians(), 0.0, 0.0);
+        // Own arm turned 8°, the peer's level: 4° of it is the disagreement, 4° shared (3° of
+        // which is followed).
+        let disagreeing = settled_command_deg(roll, Vector3::zeros());
+        let expected = 4.0 + plan.comply_max_rotation_deg;
+        assert!(
+            (disagreeing - expected).abs() < 0.3,
+            "{disagreeing}° (expected {expected}°)"
+        );
+        // Both arms see the same 8° roll about the world's x axis (the peer faces −X, so about
+        // its own x it is −8°): all shared, followed up to the bound.
+        let shared = settled_command_deg(roll, -roll);
+        let bound = plan.comply_max_rotation_deg;
+        assert!(
+            (shared - bound).abs() < 0.3,
+            "{shared}° (expected {bound}°)"
+        );
+    }
+
     #[test]
     fn the_plan_lifts_drives_the_distance_and_comes_back_down() {
         let plan = MissionPlan::shipped().unwrap();
