@@ -161,7 +161,7 @@ pub fn check_policy(extra: &BTreeMap<String, String>) -> Result<(), ActionMapErr
         name.unwrap_or("<missing: absolute targets>"),
         version.unwrap_or("1")
     );
-    found.truncate(120);
+    crate::input::clip_for_message(&mut found, 120);
     Err(ActionMapError::Version { found })
 }
 
@@ -252,5 +252,9 @@ mod tests {
         assert_eq!(check_policy(&extra), Ok(()));
         extra.insert(ACTION_MAP_VERSION_KEY.into(), "3".into());
         assert!(check_policy(&extra).is_err());
+        // Long non-ASCII metadata (a hostile file) is refused without a panic in the message.
+        extra.insert(ACTION_MAP_KEY.into(), "ü".repeat(300));
+        let err = check_policy(&extra).unwrap_err().to_string();
+        assert!(err.contains('…'), "{err}");
     }
 }

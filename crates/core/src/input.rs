@@ -24,6 +24,21 @@ pub const MAX_RUN_LOG_BYTES: u64 = 256 << 20;
 /// Largest candump log accepted for replay, bytes (~10 min of one unit's bus at 50 Hz).
 pub const MAX_CANDUMP_BYTES: u64 = 256 << 20;
 
+/// Shortens `text` from outside the process to at most `max_bytes` bytes for an error message,
+/// cutting at a character boundary (a byte cut inside a multi-byte character would panic) and
+/// marking the cut with "…".
+pub fn clip_for_message(text: &mut String, max_bytes: usize) {
+    if text.len() <= max_bytes {
+        return;
+    }
+    let mut end = max_bytes;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    text.truncate(end);
+    text.push('…');
+}
+
 /// Why a file from outside could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum InputError {
@@ -93,6 +108,22 @@ pub fn read_capped_text(path: &Path, max_bytes: u64) -> Result<String, InputErro
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn messages_are_clipped_at_character_boundaries() {
+        for max in 0..12 {
+            let mut text = "añ€😀añ€😀".to_owned();
+            clip_for_message(&mut text, max);
+            let kept = text.trim_end_matches('…');
+            assert!(
+                kept.len() <= max && "añ€😀añ€😀".starts_with(kept),
+                "{max}: {text}"
+            );
+        }
+        let mut short = "ok".to_owned();
+        clip_for_message(&mut short, 2);
+        assert_eq!(short, "ok");
+    }
 
     #[test]
     fn caps_size_and_refuses_non_files() {

@@ -198,7 +198,7 @@ pub fn check_layout(
         Ok(())
     } else {
         let mut found = describe(version, fields);
-        found.truncate(200);
+        crate::input::clip_for_message(&mut found, 200);
         Err(LayoutMismatch {
             expected: describe(Some(&expected_version), Some(&expected_fields)),
             found,
@@ -427,6 +427,15 @@ mod tests {
         extra.insert(LAYOUT_VERSION_KEY.into(), OBS_LAYOUT_VERSION.to_string());
         extra.insert(LAYOUT_FIELDS_KEY.into(), layout_fields());
         assert_eq!(check_layout(&extra), Ok(()));
+        // A hostile file's long non-ASCII metadata is refused, not a panic of the message's cut.
+        let mut hostile = extra.clone();
+        hostile.insert(LAYOUT_FIELDS_KEY.into(), "€".repeat(500));
+        let err = check_layout(&hostile).unwrap_err();
+        assert!(
+            err.found.len() < 260 && err.found.ends_with('…'),
+            "{}",
+            err.found
+        );
         extra.insert(LAYOUT_VERSION_KEY.into(), "0".into());
         let err = check_layout(&extra).unwrap_err().to_string();
         assert!(
