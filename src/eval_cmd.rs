@@ -602,6 +602,7 @@ fn deployed_cases(
         stack,
         controller,
         args.episodes_of(payload),
+        false,
         run.bar(),
     )
     .with_context(|| format!("deployed {label} {name}"))?;

@@ -14,6 +14,7 @@ macro_rules! outln {
 mod can_cmd;
 mod eval;
 mod eval_cmd;
+mod handover_cmd;
 mod keys_cmd;
 mod log_cmd;
 mod mission;

@@ -75,10 +75,15 @@ pub enum SimCommand {
         #[arg(long, value_name = "FILE")]
         plan: Option<PathBuf>,
     },
+    /// Fly seeded missions through the deployed stack (onboard tick, gate, clamp) and write
+    /// where each completed one handed over to transport and to place: the starts the
+    /// transport and place trainings mix in (`[world] handovers` of their configs).
+    Handovers(crate::handover_cmd::HandoverArgs),
 }
 
 pub fn run(cmd: SimCommand) -> Result<()> {
     match cmd {
+        SimCommand::Handovers(args) => crate::handover_cmd::run(args),
         SimCommand::Demo {
             payload,
             seed,

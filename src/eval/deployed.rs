@@ -20,11 +20,12 @@ use anyhow::{Context, Result};
 use indicatif::ProgressBar;
 use moonhaul_coord::message::{Body, Envelope, OperatorCommand, RejectCounts, Sender, StopReason};
 use moonhaul_coord::{ClampTally, HoldReason, TeamSettings};
-use moonhaul_core::state::Phase;
+use moonhaul_core::state::{Phase, UnitCommand};
 use moonhaul_deploy::record::TickRecord;
 use moonhaul_deploy::sim_link::SimHardware;
 use moonhaul_deploy::tick::{Controller, Onboard, OnboardSettings};
 use moonhaul_hal::unit::{UnitHardware, UnitReading};
+use moonhaul_sim::handover::HandOver;
 use moonhaul_sim::scene::{EnvState, SceneModel, UNITS};
 use moonhaul_sim::{BatchEnv, EnvOptions};
 use rand::SeedableRng;
@@ -70,6 +71,9 @@ pub struct DeployedMission {
     /// How the mission ended, for the failure counts of `moonhaul eval`: "completed", the
     /// first safety stop's origin and phase, or what it lacked.
     pub outcome: String,
+    /// Where the team handed over to transport and to place (when `missions` was asked to
+    /// capture them): the world's commands so far and each unit's onboard state.
+    pub handovers: Vec<HandOver>,
 }
 
 /// Sums and counts of d(U_{k−1}, Y_k), the unit's own tracking distance, over loaded policy
@@ -126,12 +130,15 @@ impl TrackingD {
 }
 
 /// Runs `run.count` seeded missions; `controller()` builds each unit's controller. `progress`
-/// advances by one per finished mission (from the batch's threads).
+/// advances by one per finished mission (from the batch's threads). With `capture`, each
+/// mission records its hand-overs ([`moonhaul_sim::handover`]): at the first tick after which
+/// both units are in transport, and in place.
 pub fn missions(
     scene: &SceneModel,
     stack: &Stack,
     controller: &(dyn Fn() -> Result<Controller> + Sync),
     run: Episodes,
+    capture: bool,
     progress: &ProgressBar,
 ) -> Result<Vec<DeployedMission>> {
     let options = EnvOptions {
@@ -176,6 +183,7 @@ pub fn missions(
         let max_ticks = (MAX_MISSION_S / period_s).round() as u64;
         let (mut last_phase, mut phase_start) = (Phase::Idle, 0u64);
         let start_ground_z = ground_under_payload(state);
+        let mut command_log: Vec<[UnitCommand; UNITS]> = Vec::new();
         for tick in 0..max_ticks {
             let now_us = tick * period_us;
             if tick == START_TICK {
@@ -228,6 +236,16 @@ pub fn missions(
             if !state.is_finite() {
                 break;
             }
+            if capture {
+                command_log.push(commands);
+                capture_handover(
+                    &mut mission.handovers,
+                    &units,
+                    (*seed, options),
+                    &command_log,
+                    state,
+                );
+            }
             let phase = units[0].0.phase();
             seen_place |= phase == Phase::Place;
             if phase != last_phase {
@@ -265,6 +283,36 @@ pub fn missions(
     Ok(work.into_iter().filter_map(|(_, m)| m).collect())
 }
 
+/// Adds the hand-over into the phase both units have just committed to (transport or place,
+/// once each), after the tick whose commands end `commands`.
+fn capture_handover(
+    handovers: &mut Vec<HandOver>,
+    units: &[(Onboard, SimHardware, TickRecord)],
+    world: (u64, EnvOptions),
+    commands: &[[UnitCommand; UNITS]],
+    state: &EnvState,
+) {
+    let phase = units[0].0.phase();
+    let next = match handovers.last() {
+        None => Phase::Transport,
+        Some(h) if h.phase == Phase::Transport => Phase::Place,
+        Some(_) => return,
+    };
+    if phase != next || units.iter().any(|(o, ..)| o.phase() != phase) {
+        return;
+    }
+    let captured: Option<Vec<_>> = units.iter().map(|(o, ..)| o.hand_over()).collect();
+    if let Some(Ok(captured)) = captured.map(<[_; UNITS]>::try_from) {
+        handovers.push(HandOver::new(
+            phase,
+            world,
+            commands.to_vec(),
+            captured,
+            state,
+        ));
+    }
+}
+
 /// The world height of the ground under the payload's centre, m: its pose less its height
 /// above that ground (both simulator truth; the half extent cancels in differences).
 fn ground_under_payload(state: &EnvState) -> f64 {
@@ -284,6 +332,7 @@ struct Tally {
     ground_offset_at_release_m: Option<f64>,
     release_height_m: Option<f64>,
     outcome: String,
+    handovers: Vec<HandOver>,
     /// The first safety stop raised by a unit itself (not one it heard), with its phase.
     first_stop: Option<String>,
     /// The phase of the unit's last tick, for naming where a stop happened.
@@ -387,6 +436,7 @@ impl Tally {
             ground_offset_at_release_m: self.ground_offset_at_release_m,
             release_height_m: self.release_height_m,
             outcome: self.outcome,
+            handovers: self.handovers,
         }
     }
 }
@@ -469,7 +519,15 @@ mod tests {
             threads: 0,
         };
         let scripted = || Ok(Controller::Scripted(plan));
-        let missions = missions(&scene, &stack, &scripted, run, &ProgressBar::hidden()).unwrap();
+        let missions = missions(
+            &scene,
+            &stack,
+            &scripted,
+            run,
+            false,
+            &ProgressBar::hidden(),
+        )
+        .unwrap();
         let outcomes: Vec<&str> = missions.iter().map(|m| m.outcome.as_str()).collect();
         // The bar of `moonhaul eval` (measured over 100 missions in the README) less one.
         let completed = outcomes.iter().filter(|o| **o == "completed").count();
@@ -491,5 +549,115 @@ mod tests {
             "the seeds no longer meet ground 2 mm higher and 5 mm lower than the start's: \
              {offsets:?}"
         );
+    }
+
+    /// A hand-over captured in a deployed scripted mission replays into the deployed world
+    /// (payload pose, joints) and starts a phase-task episode with the commands, pipeline step
+    /// and published states the onboard ticks had; the episode steps on from there. A capture
+    /// whose commands were altered is refused by the replay's check.
+    #[test]
+    fn a_captured_handover_replays_into_the_deployed_state_and_starts_there() {
+        use moonhaul_sim::handover::HandOverFile;
+        use moonhaul_sim::task::PhaseTask;
+        use moonhaul_sim::Env;
+
+        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
+        let unit = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
+        let stack = Stack {
+            team: unit.team_settings(),
+            gate: GateConfig::shipped().unwrap(),
+            sync: SyncConfig::shipped().unwrap(),
+            tasks: TaskConfig::shipped().unwrap(),
+        };
+        let plan = MissionPlan::shipped().unwrap();
+        let run = Episodes {
+            payload: PayloadKind::Bricks,
+            randomize: true,
+            count: 2,
+            seed: 77,
+            threads: 0,
+        };
+        let scripted = || Ok(Controller::Scripted(plan));
+        let missions =
+            missions(&scene, &stack, &scripted, run, true, &ProgressBar::hidden()).unwrap();
+        let handovers: Vec<_> = missions.into_iter().flat_map(|m| m.handovers).collect();
+        let phases: Vec<Phase> = handovers.iter().map(|h| h.phase).collect();
+        assert_eq!(
+            phases,
+            [
+                Phase::Transport,
+                Phase::Place,
+                Phase::Transport,
+                Phase::Place
+            ]
+        );
+        // Through the file format and back, exactly.
+        let file = HandOverFile::new(handovers);
+        let text = serde_json::to_string(&file).unwrap();
+        let read: HandOverFile = serde_json::from_str(&text).unwrap();
+        assert_eq!(read, file);
+
+        for h in &read.handovers {
+            let mut env = Env::replay(&scene, h).unwrap();
+            let replayed = env.state(&scene);
+            let (payload_m, joint_rad) = h.distance_to(&replayed);
+            assert!(
+                payload_m < 1e-9 && joint_rad < 1e-9,
+                "{payload_m} m, {joint_rad} rad"
+            );
+            // Resets restore the hand-over, not the settled start.
+            env.reset();
+            let reset = env.state(&scene);
+            assert_eq!(h.distance_to(&reset), (0.0, 0.0));
+            let lift = reset.payload.height_m;
+            assert!(lift > 0.2, "{}: the payload is {lift} m up", h.phase);
+
+            let task = PhaseTask::new(h.phase, stack.tasks, stack.sync, &scene).unwrap();
+            let mut rng = PhaseTask::rng(1);
+            let mut episode = task.begin_handover(&scene, &reset, h, &mut rng).unwrap();
+            for i in 0..UNITS {
+                let commands = episode.command_state(i);
+                assert_eq!(commands.own, h.units[i].command);
+                assert_eq!(commands.peer, h.units[1 - i].command);
+                assert_eq!(commands.last_t_max, h.units[i].last_t_max);
+                assert_eq!(*episode.published(i), h.units[i].sensed);
+                // The hand-over is not a settled start: the command leads the joints.
+                let sensed = h.units[i].sensed.arm.position_rad;
+                let lead = h.units[i]
+                    .command
+                    .arm_position_rad
+                    .iter()
+                    .zip(sensed)
+                    .fold(0.0f64, |m, (u, y)| m.max((u - y).abs()));
+                assert!(lead > 1e-4, "{}: U = Y within {lead} rad", h.phase);
+            }
+            // It steps on, holding its command, without a stop.
+            let mut state = reset;
+            for _ in 0..25 {
+                let commands = episode
+                    .commands(
+                        &task,
+                        &[[0.0; moonhaul_core::state::UNIT_ACTION_DIM]; UNITS],
+                    )
+                    .unwrap();
+                env.step(&scene, &commands);
+                env.state_into(&scene, &mut state);
+                let outcome = episode.advance(&task, &scene, &mut env, &mut state, &mut rng);
+                assert_eq!(outcome.terminated, None, "{}", h.phase);
+            }
+            assert!((state.payload.height_m - lift).abs() < 0.05);
+        }
+
+        // Another world, or other commands, do not end where the capture did.
+        let mut forged = read.handovers[0].clone();
+        forged.world_seed += 1;
+        let mut bent = read.handovers[0].clone();
+        for tick in &mut bent.commands[100..] {
+            tick[0].arm_position_rad[1] += 0.05;
+        }
+        for h in [forged, bent] {
+            let error = Env::replay(&scene, &h).err().unwrap().to_string();
+            assert!(error.contains("captured world"), "{error}");
+        }
     }
 }

@@ -35,9 +35,10 @@ const USAGE: &str =
                 bring up a unit's CAN drives (emulated); see runs/demo/
   test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
   setup         only install libtorch (PyTorch from PyPI) into the project venv
-  train-all     retrain the bundled policies from scratch: lift, transport and place with
-                configs/train/<phase>.toml into runs/<phase>/, then copy each policy and
-                its training curve to assets/policies/
+  train-all     retrain the bundled policies from scratch: capture the scripted expert's
+                hand-overs (runs/handovers/scripted.json), train lift, transport and place
+                with configs/train/<phase>.toml into runs/<phase>/, then copy each policy
+                and its training curve to assets/policies/
   bench [ARGS]  the side-by-side benchmark: the simulator against MuJoCo and the PPO update
                 and act against rsl_rl 5.5.1, alternating, printing the ratios (installs
                 mujoco and rsl_rl into a separate venv, MOONHAUL_BENCH_VENV or .venv-bench;
@@ -289,6 +290,23 @@ fn train_all() -> Result<(), String> {
         "moonhaul-learn",
         "--bin",
         "moonhaul-train",
+    ]))?;
+    // Transport and place mix in worlds that start where the scripted expert handed over
+    // through the deployed stack (their configs' `[world] handovers`).
+    run(cargo_command(&venv).args([
+        "run",
+        "--quiet",
+        "--release",
+        "--package",
+        "moonhaul",
+        "--bin",
+        "moonhaul",
+        "--",
+        "sim",
+        "handovers",
+        "--out",
+        "runs/handovers/scripted.json",
+        "--force",
     ]))?;
     let assets = root.join("assets").join("policies");
     std::fs::create_dir_all(&assets)

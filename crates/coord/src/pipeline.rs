@@ -115,6 +115,17 @@ impl ActionPipeline {
         self.beyond_ticks = 0;
     }
 
+    /// The hold rule's count: consecutive ticks this unit's own U_{k−1} was beyond tolerance.
+    pub fn beyond_ticks(&self) -> u32 {
+        self.beyond_ticks
+    }
+
+    /// Continues a pipeline whose hold rule had counted `beyond_ticks` (a training episode
+    /// that starts where a deployed mission handed over).
+    pub fn resume(&mut self, beyond_ticks: u32) {
+        self.beyond_ticks = beyond_ticks;
+    }
+
     /// One tick: writes U_k of every unit into `issued` (only this unit's entry is meant to be
     /// sent to drives; the peers' are what this unit's clamp would have let them do).
     pub fn step(

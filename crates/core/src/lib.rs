@@ -10,6 +10,8 @@
 //! - [`atomic_file`]: whole-or-nothing writes of every file the project produces.
 //! - [`overwrite`]: the check every output path passes: never over a run's input, never over
 //!   an existing file without `--force`.
+//! - [`handover`]: a unit's onboard state when the phase gate hands over, where training
+//!   episodes of the next phase begin.
 //! - [`config`]: the one loader of every TOML settings file, and its range checks.
 //! - [`input`]: size-capped reads of every file that comes from outside.
 //! - [`scripted`]: the scripted mission plan, its base tracking law, and the scripted
@@ -31,6 +33,7 @@
 pub mod action;
 pub mod atomic_file;
 pub mod config;
+pub mod handover;
 pub mod ik;
 pub mod input;
 pub mod kinematics;

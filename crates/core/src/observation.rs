@@ -212,7 +212,7 @@ pub fn check_layout(
 /// the same cargo lift from the same joints (layout version 2; version 1 measured the peer
 /// from the own rest pose, which put the two units' estimates apart by their arms' difference
 /// at rest, a centimetre with the randomized initial joints, and split the phase gate).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GraspReference {
     /// The end-effector pose in the base frame at the rest grasp.
     pub ee_rest_in_base: Isometry3<f64>,

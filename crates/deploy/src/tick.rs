@@ -55,6 +55,7 @@ use moonhaul_coord::{
     PipelineInput, SyncConfig, Team, TeamSettings, UnitModel,
 };
 use moonhaul_core::action::{ActionMap, ActionMapError};
+use moonhaul_core::handover::UnitHandOver;
 use moonhaul_core::observation::{
     unit_observation, CommandState, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
 };
@@ -390,6 +391,21 @@ impl Onboard {
             }
         }
         self.team.receive(message);
+    }
+
+    /// This unit's state for a training episode of the next phase to begin from (see
+    /// [`moonhaul_core::handover`]); `None` before its lift recorded a rest grasp.
+    pub fn hand_over(&self) -> Option<UnitHandOver> {
+        Some(UnitHandOver {
+            command: self.previous,
+            sensed: self.sensed[self.unit],
+            last_t_max: self.last_t_max,
+            last_held: self.last_held,
+            beyond_ticks: self.pipeline.beyond_ticks(),
+            odometry: self.odometry,
+            phase_start_base: self.episode.start_base,
+            reference: self.reference?,
+        })
     }
 
     /// Drill: from now on the active policy's output is NaN, so the tick's own check of it

@@ -38,6 +38,14 @@ pub struct WorldConfig {
     /// `configs/sync.toml` (the clamp and hold rule the tasks step through), relative to this
     /// config file.
     pub sync: PathBuf,
+    /// A hand-over file (`moonhaul sim handovers`), relative to this config file: transport
+    /// and place worlds that start where a deployed mission handed over
+    /// ([`moonhaul_sim::handover`]). Not in the paper.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub handovers: Option<PathBuf>,
+    /// The share of worlds that start from a hand-over (the rest start settled), 0 to 1.
+    #[serde(default)]
+    pub handover_fraction: f64,
 }
 
 /// What to train and how the run is driven.
@@ -195,7 +203,11 @@ impl Validate for TrainConfig {
         if let Some(world) = &mut self.world {
             // Absolute where they exist, so the resolved config saved in a run folder still
             // names them; a missing file is reported when the world is built.
-            for path in [&mut world.sim, &mut world.tasks, &mut world.sync] {
+            let handovers = world.handovers.as_mut();
+            for path in [&mut world.sim, &mut world.tasks, &mut world.sync]
+                .into_iter()
+                .chain(handovers)
+            {
                 let resolved = config::resolve(config_path, path);
                 *path = std::fs::canonicalize(&resolved).unwrap_or(resolved);
             }
@@ -288,7 +300,28 @@ impl Validate for TrainConfig {
                     "the pendulum task has no simulated world; remove [world]",
                 ))
             }
-            (Task::Pendulum, None) | (_, Some(_)) => {}
+            (Task::Pendulum, None) => {}
+            (task, Some(world)) => section("world", || {
+                in_range("handover_fraction", world.handover_fraction, 0.0, 1.0)?;
+                let starts = world.handover_fraction > 0.0;
+                if starts && !matches!(task, Task::Transport | Task::Place) {
+                    return Err(FieldError::new(
+                        "handover_fraction",
+                        format!(
+                            "the {} task has no hand-over: only transport and place start \
+                             where a deployed mission handed over",
+                            task.name()
+                        ),
+                    ));
+                }
+                if starts != world.handovers.is_some() {
+                    return Err(FieldError::new(
+                        "handovers",
+                        "a hand-over file and a positive handover_fraction go together",
+                    ));
+                }
+                Ok(())
+            })?,
             (task, None) => {
                 return Err(FieldError::new(
                     "world",

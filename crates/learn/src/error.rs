@@ -24,6 +24,8 @@ pub enum LearnError {
     /// The simulated world cannot be built or stepped.
     #[error(transparent)]
     Sim(#[from] moonhaul_sim::SimError),
+    #[error(transparent)]
+    HandOvers(#[from] moonhaul_sim::handover::HandOverFileError),
     /// A batch passed to an environment has the wrong length.
     #[error("{what} has {found} values, expected {expected}")]
     Shape {

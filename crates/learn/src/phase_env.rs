@@ -13,10 +13,12 @@
 //! reward held until the time limit, `r · (1 − γ^k)/(1 − γ)` for the k steps left: failing is
 //! worth what staying in the failed state would have cost, no more and no less.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use moonhaul_core::observation::ACTOR_OBS_DIM;
 use moonhaul_core::state::{Phase, UNIT_ACTION_DIM};
+use moonhaul_sim::handover::HandOver;
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
 use moonhaul_sim::task::{Episode, PhaseTask, StepOutcome, TaskConfig, CRITIC_OBS_DIM};
 use moonhaul_sim::{BatchEnv, SimError};
@@ -29,6 +31,9 @@ use crate::LearnError;
 /// Everything one world needs between steps, and its outputs of the last step.
 struct World {
     episode: Episode,
+    /// The hand-over this world was replayed from and its episodes start at (`None`: settled
+    /// starts).
+    handover: Option<Arc<HandOver>>,
     rng: ChaCha8Rng,
     /// This step's increments Δ = step ⊙ a of both units, fed to the episode's pipelines.
     deltas: [[f64; UNIT_ACTION_DIM]; UNITS],
@@ -96,6 +101,7 @@ pub struct PhaseVecEnv {
     reward: RewardConfig,
     gamma: f64,
     worlds: Vec<World>,
+    starts: HandOverStarts,
     /// Physics' share of the step wall time since [`VecEnv::take_physics_s`], s.
     physics_s: f64,
 }
@@ -127,14 +133,42 @@ impl PhaseVecEnv {
             reward,
             gamma,
             worlds: Vec::with_capacity(worlds),
+            starts: HandOverStarts::default(),
             physics_s: 0.0,
         };
         env.begin_all(0)?;
         Ok(env)
     }
 
+    /// The same batch with `starts.fraction` of its worlds replayed from `starts.handovers`
+    /// (rebuilt now, and at every reset).
+    pub fn with_handover_starts(mut self, starts: HandOverStarts) -> Result<Self, LearnError> {
+        if starts.worlds(self.batch.len()) == 0 {
+            return Ok(self);
+        }
+        self.starts = starts;
+        self.rebuild(0)?;
+        self.begin_all(0)?;
+        Ok(self)
+    }
+
     pub fn task(&self) -> &PhaseTask {
         &self.task
+    }
+
+    /// Rebuilds every world from `seed`: the hand-over worlds replayed from their captures,
+    /// the others drawn as [`BatchEnv::reseed`] draws them.
+    fn rebuild(&mut self, seed: u64) -> Result<(), LearnError> {
+        let worlds = self.batch.len();
+        let starts = &self.starts;
+        let options = self.task.env_options(true, None);
+        self.batch.reseed_with(seed, |scene, w, env_seed| {
+            match starts.of_world(seed, w, worlds) {
+                Some(h) => Env::replay(scene, &h),
+                None => Env::new(scene, env_seed, options),
+            }
+        })?;
+        Ok(())
     }
 
     /// Starts an episode in every world from its current (freshly built) state.
@@ -149,9 +183,11 @@ impl PhaseVecEnv {
             .enumerate()
         {
             let mut rng = PhaseTask::rng(moonhaul_sim::batch::env_seed(seed, i));
-            let episode = self.task.begin(scene, env, state, &mut rng)?;
+            let handover = self.starts.of_world(seed, i, self.batch.len());
+            let episode = begin(&self.task, scene, env, state, handover.as_deref(), &mut rng)?;
             let mut world = World {
                 episode,
+                handover,
                 rng,
                 deltas: [[0.0; UNIT_ACTION_DIM]; UNITS],
                 obs: [[0.0; ACTOR_OBS_DIM]; UNITS],
@@ -183,6 +219,52 @@ impl PhaseVecEnv {
                     .copy_from_slice(&world.critic[i]);
             }
         }
+    }
+}
+
+/// The hand-over starts of a batch: the captured hand-overs and the share of worlds replayed
+/// from them ([`moonhaul_sim::handover`]).
+#[derive(Debug, Clone, Default)]
+pub struct HandOverStarts {
+    pub handovers: Vec<Arc<HandOver>>,
+    /// Share of the worlds, 0 to 1.
+    pub fraction: f64,
+}
+
+impl HandOverStarts {
+    /// How many of `worlds` start from a hand-over (rounded to nearest).
+    fn worlds(&self, worlds: usize) -> usize {
+        if self.handovers.is_empty() {
+            0
+        } else {
+            ((self.fraction * worlds as f64).round() as usize).min(worlds)
+        }
+    }
+
+    /// The hand-over of world `w` of `worlds` after a rebuild from `seed`: the first
+    /// [`HandOverStarts::worlds`] worlds replay hand-overs, each rebuild moving on through
+    /// the list so that every capture is used.
+    fn of_world(&self, seed: u64, w: usize, worlds: usize) -> Option<Arc<HandOver>> {
+        let n = self.worlds(worlds);
+        (w < n).then(|| {
+            let k = (seed as usize).wrapping_mul(n).wrapping_add(w) % self.handovers.len();
+            self.handovers[k].clone()
+        })
+    }
+}
+
+/// A new episode in a freshly reset world: at its hand-over, or settled.
+fn begin(
+    task: &PhaseTask,
+    scene: &SceneModel,
+    env: &Env,
+    state: &EnvState,
+    handover: Option<&HandOver>,
+    rng: &mut ChaCha8Rng,
+) -> Result<Episode, SimError> {
+    match handover {
+        Some(h) => task.begin_handover(scene, state, h, rng),
+        None => task.begin(scene, env, state, rng),
     }
 }
 
@@ -245,7 +327,7 @@ impl VecEnv for PhaseVecEnv {
             critic_obs,
             self.num_envs() * CRITIC_OBS_DIM,
         )?;
-        self.batch.reseed(seed)?;
+        self.rebuild(seed)?;
         self.begin_all(seed)?;
         self.write_rows(obs, critic_obs);
         Ok(())
@@ -276,7 +358,14 @@ impl VecEnv for PhaseVecEnv {
         let scene = self.batch.scene();
         let (env, state) = (&self.batch.envs()[w], &self.batch.states()[w]);
         let world = &mut self.worlds[w];
-        world.episode = task.begin(scene, env, state, &mut world.rng)?;
+        world.episode = begin(
+            task,
+            scene,
+            env,
+            state,
+            world.handover.as_deref(),
+            &mut world.rng,
+        )?;
         observe(task, scene, env, state, world)?;
         let i = index % UNITS;
         obs.copy_from_slice(&world.obs[i]);
@@ -388,7 +477,14 @@ fn task_step(
         world.final_critic = world.critic;
         env.reset();
         env.state_into(scene, state);
-        world.episode = task.begin(scene, env, state, &mut world.rng)?;
+        world.episode = begin(
+            task,
+            scene,
+            env,
+            state,
+            world.handover.as_deref(),
+            &mut world.rng,
+        )?;
     }
     observe(task, scene, env, state, world)
 }

@@ -3,19 +3,21 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::Arc;
 
 use moonhaul_core::state::Phase;
 
 use moonhaul_core::observation::{
     layout_fields, LAYOUT_FIELDS_KEY, LAYOUT_VERSION_KEY, OBS_LAYOUT_VERSION,
 };
+use moonhaul_sim::handover::HandOverFile;
 use moonhaul_sim::task::TaskConfig;
 use moonhaul_sim::{SceneModel, SimConfig};
 
 use crate::config::{Task, TrainConfig};
 use crate::env::VecEnv;
 use crate::pendulum::PendulumVecEnv;
-use crate::phase_env::PhaseVecEnv;
+use crate::phase_env::{HandOverStarts, PhaseVecEnv};
 use crate::LearnError;
 
 /// `num_envs` environments of the config's task: pendulums, or simulated worlds of a phase
@@ -59,15 +61,28 @@ pub fn make_env(
         let kind = scene.add_payload_file(path)?;
         scene.config.randomization.payloads = vec![kind];
     }
-    Ok(Box::new(PhaseVecEnv::new(
-        phase,
-        scene,
-        (tasks, sync),
-        reward,
-        config.ppo.gamma,
-        num_envs,
-        config.run.threads,
-    )?))
+    let starts = match (&world.handovers, phase) {
+        (Some(path), Some(phase)) => HandOverStarts {
+            handovers: HandOverFile::load(path, phase)?
+                .into_iter()
+                .map(Arc::new)
+                .collect(),
+            fraction: world.handover_fraction,
+        },
+        _ => HandOverStarts::default(),
+    };
+    Ok(Box::new(
+        PhaseVecEnv::new(
+            phase,
+            scene,
+            (tasks, sync),
+            reward,
+            config.ppo.gamma,
+            num_envs,
+            config.run.threads,
+        )?
+        .with_handover_starts(starts)?,
+    ))
 }
 
 /// The phase recorded in an exported policy, and a `task` metadata entry.
@@ -107,7 +122,13 @@ mod tests {
             ("place", 6),
             ("mission", 6),
         ] {
-            let config = TrainConfig::load(format!("{dir}{name}.toml")).unwrap();
+            let mut config = TrainConfig::load(format!("{dir}{name}.toml")).unwrap();
+            // The hand-over file is made by `moonhaul sim handovers` (train-all does): settled
+            // starts here; tests/handover_starts.rs trains from a captured fixture.
+            if let Some(world) = &mut config.world {
+                world.handovers = None;
+                world.handover_fraction = 0.0;
+            }
             let env = make_env(&config, 3, None).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(env.num_envs(), rows, "{name}");
         }

@@ -61,14 +61,27 @@ impl BatchEnv {
 
     /// Rebuilds every env from `seed` (as [`BatchEnv::new`] would), keeping the thread pool.
     pub fn reseed(&mut self, seed: u64) -> Result<(), SimError> {
-        let (scene, options) = (&self.scene, self.options);
+        let options = self.options;
+        self.reseed_with(seed, |scene, _, env_seed| {
+            Env::new(scene, env_seed, options)
+        })
+    }
+
+    /// Rebuilds env `i` as `build(scene, i, env_seed(seed, i))`, in parallel on the pool (e.g.
+    /// some envs replayed from hand-overs, [`crate::handover`]).
+    pub fn reseed_with(
+        &mut self,
+        seed: u64,
+        build: impl Fn(&SceneModel, usize, u64) -> Result<Env, SimError> + Sync,
+    ) -> Result<(), SimError> {
+        let scene = &self.scene;
         let (envs, states) = (&mut self.envs, &mut self.states);
         self.pool.install(|| {
             envs.par_iter_mut()
                 .zip(states.par_iter_mut())
                 .enumerate()
                 .try_for_each(|(i, (env, state))| {
-                    *env = Env::new(scene, env_seed(seed, i), options)?;
+                    *env = build(scene, i, env_seed(seed, i))?;
                     env.state_into(scene, state);
                     Ok(())
                 })

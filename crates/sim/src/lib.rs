@@ -14,6 +14,8 @@
 //!   centred on the link frame with its long side along x (size x ≥ size y), and the arms must
 //!   reach its grasp; the [`scene`] module docs give the whole convention. Violations are
 //!   errors naming the file.
+//! - [`handover`]: transport and place episodes that start where a deployed mission handed
+//!   over (captured, replayed).
 //! - [`batch`]: many worlds stepped in parallel, deterministically.
 //! - [`task`]: the lift, transport and place episodes that training and evaluation share.
 //! - [`scripted`]: the non-learned lift → transport → place controller; [`accuracy`]: the
@@ -25,6 +27,7 @@ pub mod accuracy;
 pub mod batch;
 pub mod config;
 pub mod convert;
+pub mod handover;
 pub use moonhaul_core::ik;
 pub mod model;
 pub mod randomization;

@@ -19,6 +19,10 @@
 //!   X); it ends released: the grasps open as onboard, once the units' touchdown signal
 //!   ([`moonhaul_core::touchdown`], from the sensed joints and the commands) has lasted
 //!   `release_after_contact_s` (the gripper is not part of u⁽ⁱ⁾).
+//! - *Hand-over starts* ([`PhaseTask::begin_handover`], [`crate::handover`]): a transport or
+//!   place episode can instead begin where a deployed mission handed over, in the replayed
+//!   world of that mission, with each unit's onboard U_{k−1}, clamp step, hold count,
+//!   odometry and rest grasp, and the mission's goals. Training configs choose the share.
 //!
 //! **Terminations** (no value beyond them): a grasp broke by overload; the payload tilted past
 //! `safety.max_tilt_deg` (a safety bound, far above the 10° reward tolerance); the world
@@ -64,6 +68,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
+use crate::handover::HandOver;
 use crate::scene::{Env, EnvOptions, EnvState, SceneModel, UNITS};
 use crate::SimError;
 
@@ -244,6 +249,7 @@ impl PhaseTask {
             previous: [UnitCommand::default(); UNITS],
             pipelines: self.pipelines(scene)?,
             reports: None,
+            last_step: [(0.0, true); UNITS],
         };
         episode.sense(self, scene, state, rng, false);
         episode.published = episode.sensed;
@@ -271,6 +277,63 @@ impl PhaseTask {
 }
 
 impl PhaseTask {
+    /// Starts an episode where a deployed mission handed over ([`crate::handover`]): on `env`,
+    /// [`Env::replay`]ed from `handover` and reset (so in the captured world state `state`),
+    /// with each unit's captured onboard state — its U_{k−1}, pipeline step and hold count,
+    /// odometry, rest grasp and the phase start its goals are measured from — and the peers'
+    /// published states of the hand-over tick. The goals are the mission's, as onboard.
+    pub fn begin_handover(
+        &self,
+        scene: &SceneModel,
+        state: &EnvState,
+        handover: &HandOver,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<Episode, SimError> {
+        if self.mission || handover.phase != self.phase {
+            return Err(SimError::Config {
+                field: "handover",
+                reason: format!(
+                    "a hand-over into {} cannot start a {} episode",
+                    handover.phase,
+                    if self.mission {
+                        "mission".to_string()
+                    } else {
+                        self.phase.to_string()
+                    }
+                ),
+            });
+        }
+        let units = &handover.units;
+        let (goal_height_m, _) = self.config.mission_targets(self.phase);
+        let mut pipelines = self.pipelines(scene)?;
+        for (pipeline, unit) in pipelines.iter_mut().zip(units) {
+            pipeline.resume(unit.beyond_ticks);
+        }
+        let mut episode = Episode {
+            phase: self.phase,
+            phase_start_step: 0,
+            goal_height_m,
+            place_offset_m: 0.0,
+            start_base: units.map(|u| u.phase_start_base),
+            payload_start: state.payload.pose.translation.vector.xy(),
+            odometry: units.map(|u| u.odometry),
+            sensed: units.map(|u| u.sensed),
+            published: units.map(|u| u.sensed),
+            reference: units.map(|u| u.reference),
+            steps: 0,
+            touchdown: [Touchdown::default(); UNITS],
+            released: [false; UNITS],
+            previous: units.map(|u| u.command),
+            pipelines,
+            reports: None,
+            last_step: units.map(|u| (u.last_t_max, u.last_held)),
+        };
+        // The first tick after the hand-over: what was sensed then is now published, and the
+        // odometry runs on.
+        episode.sense(self, scene, state, rng, true);
+        Ok(episode)
+    }
+
     /// One action pipeline per unit, each from its own unit's view.
     fn pipelines(&self, scene: &SceneModel) -> Result<[ActionPipeline; UNITS], SimError> {
         let model = moonhaul_coord::UnitModel::new(scene.spec.clone());
@@ -331,6 +394,9 @@ pub struct Episode {
     pipelines: [ActionPipeline; UNITS],
     /// What each unit's pipeline did at the last step.
     reports: Option<[PipelineReport; UNITS]>,
+    /// Each unit's last pipeline step as its observation sees it: t_max and whether it held
+    /// (before the first step, a hold, or the hand-over's).
+    last_step: [(f64, bool); UNITS],
 }
 
 impl Episode {
@@ -367,6 +433,9 @@ impl Episode {
         }
         self.previous = next;
         self.reports = reports[0].zip(reports[1]).map(|(a, b)| [a, b]);
+        if let Some(reports) = &self.reports {
+            self.last_step = reports.map(|r| (r.clamp.t_max, r.clamp.hold.is_some()));
+        }
         Ok(next)
     }
 
@@ -467,14 +536,15 @@ impl Episode {
     }
 
     /// What unit `i` knows of the commands and its pipeline: its own U_{k−1}, the peer's, and
-    /// its pipeline's last step (before the first step, a hold: a phase begins after one).
+    /// its pipeline's last step (before the first step, a hold: a phase begins after one; a
+    /// hand-over start's, as captured).
     pub fn command_state(&self, i: usize) -> CommandState {
-        let mut state = CommandState::after_hold(self.previous[i], self.previous[1 - i]);
-        if let Some(reports) = &self.reports {
-            state.last_t_max = reports[i].clamp.t_max;
-            state.last_held = reports[i].clamp.hold.is_some();
+        let (last_t_max, last_held) = self.last_step[i];
+        CommandState {
+            last_t_max,
+            last_held,
+            ..CommandState::after_hold(self.previous[i], self.previous[1 - i])
         }
-        state
     }
 
     /// Unit `i`'s actor observation.

@@ -81,6 +81,13 @@ impl Env {
         self.pipeline_steps = 0;
     }
 
+    /// Makes the world as it is now the one [`Env::reset`] restores, at time zero (a
+    /// hand-over start, [`crate::handover`]).
+    pub(crate) fn rebase(&mut self) {
+        self.pipeline_steps = 0;
+        *self.template = Template::of(self);
+    }
+
     /// Runs the drives on `hold` without noise for `seconds` (rounded to control periods).
     fn settle(&mut self, scene: &SceneModel, hold: &[UnitCommand; UNITS], seconds: f64) {
         let noiseless = [([0.0; WHEEL_JOINTS], [0.0; ARM_JOINTS]); UNITS];
