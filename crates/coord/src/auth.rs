@@ -78,8 +78,8 @@ pub const MAX_FRAME_BYTES: usize = FRAME_HEADER_BYTES + MAX_MESSAGE_BYTES;
 pub const MAX_KEY_FILE_BYTES: u64 = 64 << 10;
 /// Most units a key file may hold keys for.
 pub const MAX_KEY_FILE_UNITS: usize = 64;
-/// Longest team name a key file may hold, bytes.
-pub const MAX_TEAM_NAME_BYTES: usize = 256;
+/// Longest team name, bytes: it is part of every message's key expression.
+pub const MAX_TEAM_NAME_BYTES: usize = 64;
 
 /// One sender's 32-byte secret. Its `Debug` never shows the bytes; it is written to and read
 /// from a key file as 64 lowercase hex digits.
@@ -439,15 +439,17 @@ impl KeyFile {
     }
 }
 
-fn check_team_name(team: &str) -> Result<(), String> {
-    if team.is_empty() {
-        return Err("must not be empty".to_owned());
-    }
-    if team.len() > MAX_TEAM_NAME_BYTES {
-        return Err(format!("is longer than {MAX_TEAM_NAME_BYTES} bytes"));
-    }
-    if team.chars().any(char::is_control) {
-        return Err("must not contain control characters".to_owned());
+/// The one rule for a team name, shared by key files and `unit.toml`: 1 to
+/// [`MAX_TEAM_NAME_BYTES`] ASCII letters, digits, '_' or '-' (it is a segment of every zenoh
+/// key expression the team uses, where '/', '*', '$', '#' and '?' mean something else).
+pub fn check_team_name(team: &str) -> Result<(), String> {
+    let allowed = |b: u8| b.is_ascii_alphanumeric() || b == b'_' || b == b'-';
+    if team.is_empty() || team.len() > MAX_TEAM_NAME_BYTES || !team.bytes().all(allowed) {
+        let mut shown = team.to_owned();
+        moonhaul_core::input::clip_for_message(&mut shown, 2 * MAX_TEAM_NAME_BYTES);
+        return Err(format!(
+            "{shown:?} must be 1 to {MAX_TEAM_NAME_BYTES} ASCII letters, digits, '_' or '-'"
+        ));
     }
     Ok(())
 }
@@ -752,6 +754,27 @@ mod tests {
         let text = format!("{a:?} {:?}", a.sealer(Sender::Unit(0)).unwrap());
         assert!(!text.contains(&a.units[0].to_hex()), "{text}");
         assert!(!format!("{:?}", a.verifier()).contains(&a.operator.to_hex()));
+        // Team names a unit config refuses (key-expression characters, non-ASCII, space,
+        // too long) cannot be given a key file either.
+        for team in [
+            "a/b",
+            "team*",
+            "$x",
+            "a?b",
+            "a#b",
+            "mönhaul",
+            "two words",
+            "tab\t",
+            &"t".repeat(MAX_TEAM_NAME_BYTES + 1),
+        ] {
+            let err = KeyFile::generate(team, 2, 1).unwrap_err().to_string();
+            assert!(
+                err.contains("`team`") && err.contains("ASCII"),
+                "{team:?}: {err}"
+            );
+        }
+        KeyFile::generate(&"t".repeat(MAX_TEAM_NAME_BYTES), 2, 1).unwrap();
+        KeyFile::generate("moon_haul-2", 2, 1).unwrap();
         for (team, size) in [
             ("", 2),
             ("moonhaul", 0),
@@ -773,7 +796,7 @@ mod tests {
     fn key_file_round_trips_privately_and_is_not_overwritten() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("moonhaul.keys.toml");
-        let keys = KeyFile::generate("moon \"haul\"", 3, 7).unwrap();
+        let keys = KeyFile::generate("moon_haul-7", 3, 7).unwrap();
         keys.write_new(&path, false).unwrap();
         #[cfg(unix)]
         assert_eq!(mode(&path), 0o600);

@@ -63,9 +63,6 @@ pub struct MockSettings {
     pub arm_start_rad: [f64; ARM_JOINTS],
 }
 
-/// Longest team name, bytes: it is part of every message's key expression.
-const MAX_TEAM_NAME_BYTES: usize = 64;
-
 /// Longest zenoh endpoint accepted, bytes (a DNS name has at most 253).
 const MAX_ENDPOINT_BYTES: usize = 255;
 
@@ -173,20 +170,8 @@ impl Validate for UnitConfig {
             1,
             1000,
         )?;
-        if self.team.len() > MAX_TEAM_NAME_BYTES
-            || !self
-                .team
-                .bytes()
-                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
-        {
-            return Err(FieldError::new(
-                "team",
-                format!(
-                    "{:?} must be 1 to {MAX_TEAM_NAME_BYTES} ASCII letters, digits, '_' or '-'",
-                    self.team
-                ),
-            ));
-        }
+        moonhaul_coord::auth::check_team_name(&self.team)
+            .map_err(|reason| FieldError::new("team", reason))?;
         self.team_settings().validate().map_err(|e| {
             let field = match e {
                 TeamError::EmptyTeam => "team_size",
