@@ -122,6 +122,13 @@ pub enum TeamError {
 }
 
 impl TeamSettings {
+    /// How far a unit accepts a message's `seq` ahead of its stamp, µs: the staleness bound
+    /// plus one control period, what clock offset within the stamp bound and one tick of
+    /// messages can explain (see [`crate::message`#replay-protection](crate::message#replay-protection)).
+    pub fn seq_lead_us(&self) -> u64 {
+        self.staleness_us().saturating_add(self.control_period_us)
+    }
+
     /// The staleness bound in µs.
     pub fn staleness_us(&self) -> u64 {
         self.control_period_us

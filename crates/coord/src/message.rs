@@ -30,14 +30,23 @@
 //! - its stamp is within the staleness bound of the receiver's clock, in both directions, and
 //! - its `seq` is above that sender's last accepted one (equal: [`Rejection::Duplicate`], lower:
 //!   [`Rejection::Reordered`]), and
-//! - its `seq` is at most `stamp_us + MAX_SEQ_LEAD_US` ([`Rejection::SeqAhead`]). By the
-//!   convention above a sender's seq is its boot time plus the number of messages since, and it
-//!   sends far fewer than one message per µs, so `seq ≤ stamp_us` for every honest sender; the
-//!   lead covers clocks stepped back after boot. A rebooted sender starts at its new boot time,
-//!   above every seq it used before, so it is accepted at once. The bound is defence in depth
-//!   against a buggy keyed sender (forgeries already fail the tag): a message numbered near
-//!   `u64::MAX` is rejected and never recorded, so it cannot block later real ones; the
-//!   furthest an accepted seq can run ahead of real time is the lead plus the staleness bound.
+//! - its `seq` is at most `stamp_us` plus the lead ([`Rejection::SeqAhead`]): for a unit, the
+//!   staleness bound plus one control period ([`crate::TeamSettings::seq_lead_us`], 80 ms at
+//!   50 Hz with 3 periods); for a monitor, which does not bound stamps, [`MAX_SEQ_LEAD_US`]. By
+//!   the convention above a sender's seq is its boot time plus the number of messages since, and
+//!   it sends far fewer than one message per µs, so `seq ≤ stamp_us` for every honest sender.
+//!   The bound is what keeps a keyed sender (a holder of a unit's key, or a buggy unit) from
+//!   numbering a frame far ahead: once accepted, every genuine frame below it would be refused
+//!   as reordered, and a frame 59 s ahead stopped the team for 59 s; now the furthest an
+//!   accepted seq can run ahead of real time is the lead plus the staleness bound, 140 ms. A
+//!   message numbered near `u64::MAX` is rejected and never recorded.
+//!
+//!   A unit whose clock really did step back by more than the lead after boot sends frames
+//!   its peers refuse (`seq_ahead` in their rejection counts): they hold once its state is
+//!   stale. Its seq grows by one per message while its stamps grow by a period, so the gap
+//!   closes at almost real time and its frames are accepted again about one step's length
+//!   later; the team then takes the next operator start. A rebooted sender starts at its new
+//!   boot time, above every seq it used before unless its clock went back.
 //!
 //! A recorded frame is thus useless once its stamp is stale, and a newer key epoch retires all
 //! of them. One exception: an operator stop that names its mission
@@ -80,9 +89,9 @@ use serde::{Deserialize, Serialize};
 pub const PROTOCOL_VERSION: u16 = 2;
 /// Largest encoded message accepted (a unit-state message is well under 1 KiB).
 pub const MAX_MESSAGE_BYTES: usize = 4096;
-/// How far a message's `seq` may exceed its own `stamp_us` (see the
-/// [module docs](self#replay-protection)): 60 s, far more than any clock step a synchronized
-/// team sees after boot.
+/// How far a message's `seq` may exceed its own `stamp_us` at a monitor (see the
+/// [module docs](self#replay-protection)), whose clock need not be the team's: 60 s. A unit
+/// bounds the lead by its staleness bound instead ([`crate::TeamSettings::seq_lead_us`]).
 pub const MAX_SEQ_LEAD_US: u64 = 60_000_000;
 
 /// Who sent a message.

@@ -23,6 +23,9 @@ pub struct Validator {
     last_seq: Vec<Option<u64>>,
     /// The stamp bound, µs; `None` for a monitor, whose clock need not be the team's.
     staleness_us: Option<u64>,
+    /// How far a message's `seq` may exceed its stamp, µs (see
+    /// [`crate::message`#replay-protection](crate::message#replay-protection)).
+    seq_lead_us: u64,
     /// The physical bounds of unit messages; `None` for a monitor, which only displays them.
     bounds: Option<MessageBounds>,
     /// The mission the unit is in ([`Validator::set_mission`]), for the stop rule.
@@ -54,6 +57,7 @@ impl Validator {
             verifier: keys.verifier(),
             last_seq: vec![None; settings.team_size + 1],
             staleness_us: Some(settings.staleness_us()),
+            seq_lead_us: settings.seq_lead_us(),
             bounds: Some(bounds),
             mission: None,
             counts: RejectCounts::default(),
@@ -73,6 +77,7 @@ impl Validator {
             verifier: keys.verifier(),
             last_seq: vec![None; keys.team_size() + 1],
             staleness_us: None,
+            seq_lead_us: MAX_SEQ_LEAD_US,
             bounds: None,
             mission: None,
             counts: RejectCounts::default(),
@@ -221,12 +226,12 @@ impl Validator {
                 });
             }
         }
-        if seq > e.stamp_us.saturating_add(MAX_SEQ_LEAD_US) {
+        if seq > e.stamp_us.saturating_add(self.seq_lead_us) {
             return Err(Rejection::SeqAhead {
                 sender,
                 seq,
                 stamp_us: e.stamp_us,
-                lead_us: MAX_SEQ_LEAD_US,
+                lead_us: self.seq_lead_us,
             });
         }
         match self.last_seq[slot] {
@@ -251,6 +256,8 @@ mod tests {
     const PERIOD_US: u64 = 20_000;
     const NOW: u64 = 10_000_000;
     const BOUND: u64 = 3 * PERIOD_US;
+    /// The unit validator's seq lead: the staleness bound plus one period.
+    const LEAD: u64 = BOUND + PERIOD_US;
 
     fn settings() -> TeamSettings {
         TeamSettings {
@@ -458,12 +465,23 @@ mod tests {
                 },
             ),
             (
-                state(1, now + MAX_SEQ_LEAD_US + 1, now),
+                state(1, now + LEAD + 1, now),
                 Rejection::SeqAhead {
                     sender: Sender::Unit(1),
-                    seq: now + MAX_SEQ_LEAD_US + 1,
+                    seq: now + LEAD + 1,
                     stamp_us: now,
-                    lead_us: MAX_SEQ_LEAD_US,
+                    lead_us: LEAD,
+                },
+            ),
+            // A frame numbered 59 s ahead (inside the old 60 s window) would have blocked the
+            // genuine sender's next 59 s of frames as reordered.
+            (
+                state(1, now + 59_000_000, now),
+                Rejection::SeqAhead {
+                    sender: Sender::Unit(1),
+                    seq: now + 59_000_000,
+                    stamp_us: now,
+                    lead_us: LEAD,
                 },
             ),
         ];
@@ -510,9 +528,7 @@ mod tests {
         );
         // Sequence numbers are per sender: unit 2 may use 4; the lead is inclusive.
         assert!(f.receive(&state(2, 4, now), now).is_ok());
-        assert!(f
-            .receive(&state(2, now + MAX_SEQ_LEAD_US, now), now)
-            .is_ok());
+        assert!(f.receive(&state(2, now + LEAD, now), now).is_ok());
         // Frame-level reasons: malformed, oversize, another epoch, a bad tag.
         let unit1 = f.sealer(Sender::Unit(1));
         let truncated = unit1.seal_raw(b"{\"version\":1,\"team\":");
@@ -585,7 +601,7 @@ mod tests {
             from_future: 1,
             duplicate: 1,
             reordered: 1,
-            seq_ahead: 1,
+            seq_ahead: 2,
         };
         assert_eq!(c, expected);
         // Rejection messages name the sender for the log.
