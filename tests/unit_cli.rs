@@ -119,6 +119,8 @@ fn malformed_endpoints_and_injections_are_refused_by_name() {
         (&["--listen", "tcp/:7447"][..], "host"),
         (&["--inject", "motor:99@0.1"][..], "joint 99 does not exist"),
         (&["--inject", "emcy:9@0.1"][..], "joints are 0..8"),
+        (&["--start-pose", "5000,0,0"][..], "arena"),
+        (&["--start-pose", "0,0,100"][..], "yaw"),
     ] {
         let out = run_bounded(
             mock_unit(&keys, &["--max-runtime-s", "0.2"]).args(extra),
@@ -143,6 +145,52 @@ fn malformed_endpoints_and_injections_are_refused_by_name() {
         Duration::from_secs(60),
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
+}
+
+/// A unit of a team of two whose config and flags give no endpoint at all could never hear
+/// its peer: refused at start, naming the config.
+#[test]
+fn a_unit_with_no_way_to_reach_its_team_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = keys(dir.path());
+    let shipped = std::fs::read_to_string(repo_file("configs/unit.toml")).unwrap();
+    let mut lonely = shipped.replace("connect = [\"tcp/127.0.0.1:7447\"]", "connect = []");
+    assert_ne!(lonely, shipped);
+    // The same files by absolute path, from a config in another folder.
+    for file in [
+        "control.toml",
+        "gate.toml",
+        "sync.toml",
+        "tasks.toml",
+        "mission.toml",
+        "unit_can.toml",
+        "../assets/unit.urdf",
+        "../assets/policies",
+    ] {
+        let absolute = repo_file(&format!("configs/{file}"));
+        lonely = lonely.replace(
+            &format!("\"{file}\""),
+            &format!("{:?}", absolute.display().to_string()),
+        );
+    }
+    let config = dir.path().join("lonely.toml");
+    std::fs::write(&config, lonely).unwrap();
+    let out = run_bounded(
+        Command::new(unit_bin())
+            .arg("--config")
+            .arg(&config)
+            .args(["--hal", "mock", "--controller", "scripted", "--keys"])
+            .arg(&keys)
+            .args(["--max-runtime-s", "0.2"])
+            .stdin(Stdio::null()),
+        Duration::from_secs(60),
+    );
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("lonely.toml") && stderr.contains("could never reach"),
+        "{stderr}"
+    );
 }
 
 /// A `--hal sim` unit whose world never comes.

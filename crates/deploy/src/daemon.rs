@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
 use moonhaul_coord::clamp::anchor_command;
-use moonhaul_coord::message::{Body, FaultKind, MessageBounds, Sender};
+use moonhaul_coord::message::{Body, FaultKind, MessageBounds, Sender, ARENA_HALF_WIDTH_M};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
 use moonhaul_core::state::PlanarPose;
 use moonhaul_core::task_config::TaskConfig;
@@ -223,10 +223,16 @@ fn parse_pose(text: &str) -> Result<PlanarPose> {
         .collect::<Result<_, _>>()
         .with_context(|| format!("--start-pose {text:?}: expected x_m,y_m,yaw_rad"))?;
     match v[..] {
-        [x_m, y_m, yaw_rad] if v.iter().all(|x| x.is_finite()) => {
+        [x_m, y_m, yaw_rad]
+            if [x_m, y_m].iter().all(|c| c.abs() <= ARENA_HALF_WIDTH_M)
+                && yaw_rad.abs() <= std::f64::consts::TAU =>
+        {
             Ok(PlanarPose { x_m, y_m, yaw_rad })
         }
-        _ => bail!("--start-pose {text:?}: expected three finite numbers x_m,y_m,yaw_rad"),
+        _ => bail!(
+            "--start-pose {text:?}: expected x_m,y_m,yaw_rad with x and y within \
+             ±{ARENA_HALF_WIDTH_M} m (the arena peers hold messages to) and |yaw| ≤ 2π"
+        ),
     }
 }
 
@@ -343,6 +349,15 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
                 .map_err(|reason| anyhow::anyhow!("{flag} {endpoint:?}: {reason}"))?;
         }
     }
+    if config.team_size > 1 && net.connect.is_empty() && net.listen.is_empty() {
+        bail!(
+            "{}: [network] connect and listen are empty and no --connect or --listen was given: \
+             unit {} could never reach the other {} of its team",
+            args.config.display(),
+            config.unit_index,
+            config.team_size - 1
+        );
+    }
     if let Some(log) = &args.log {
         let mut inputs = config.inputs(&args.config);
         inputs.add("key file", &args.keys);
@@ -356,6 +371,7 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let sealer = keys.sealer(Sender::Unit(unit))?;
     let spec = UnitSpec::from_file(&config.urdf)
         .with_context(|| format!("unit model {}", config.urdf.display()))?;
+    config.check_against_model(&args.config, &spec)?;
     let validator = Validator::new(&settings, &keys, MessageBounds::of_unit(&spec))?;
     let gate = GateConfig::from_file(&config.gate)?;
     let sync = SyncConfig::from_file(&config.sync)?;

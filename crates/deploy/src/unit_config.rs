@@ -3,11 +3,14 @@
 //! the file names.
 
 use crate::network::NetworkSettings;
+use moonhaul_coord::message::ARENA_HALF_WIDTH_M;
 use moonhaul_coord::{TeamError, TeamSettings};
 use moonhaul_core::config::{self, count, ConfigError, ControlConfig, FieldError, Validate};
 use moonhaul_core::overwrite::RunInputs;
 use moonhaul_core::state::{Phase, PlanarPose, ARM_JOINTS};
+use moonhaul_core::unit::UnitSpec;
 use serde::Deserialize;
+use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -51,6 +54,10 @@ pub struct UnitConfig {
     /// The CAN backend's drive settings (`--hal can`), e.g. `unit_can.toml`.
     pub can: PathBuf,
 }
+
+/// The largest grasp load the mock reports, N: an arm's share of a 100 kg payload, ten times
+/// the heaviest the units carry.
+const MAX_GRASP_LOAD_N: f64 = 500.0;
 
 /// `[mock]` of the unit config.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
@@ -138,19 +145,19 @@ impl Validate for UnitConfig {
             moonhaul_core::state::MAX_TEAM_SIZE as u64,
         )?;
         let pose = &self.start_pose;
-        if ![pose.x_m, pose.y_m, pose.yaw_rad]
-            .iter()
-            .all(|v| v.is_finite())
-        {
-            return Err(FieldError::new("start_pose", "must be finite"));
+        // Within the arena every peer holds unit messages to: a unit starting outside it would
+        // have its every message refused.
+        for (field, v) in [("start_pose.x_m", pose.x_m), ("start_pose.y_m", pose.y_m)] {
+            config::in_range(field, v, -ARENA_HALF_WIDTH_M, ARENA_HALF_WIDTH_M)?;
         }
+        config::in_range("start_pose.yaw_rad", pose.yaw_rad, -TAU, TAU)?;
         let mock = &self.mock;
-        if !(mock.grasp_load_n.is_finite() && mock.grasp_load_n >= 0.0) {
-            return Err(FieldError::new(
-                "mock.grasp_load_n",
-                "must be a finite force >= 0",
-            ));
-        }
+        config::in_range(
+            "mock.grasp_load_n",
+            mock.grasp_load_n,
+            0.0,
+            MAX_GRASP_LOAD_N,
+        )?;
         if !mock.arm_start_rad.iter().all(|v| v.is_finite()) {
             return Err(FieldError::new("mock.arm_start_rad", "must be finite"));
         }
@@ -186,6 +193,34 @@ impl Validate for UnitConfig {
 }
 
 impl UnitConfig {
+    /// The checks that need the unit model (`urdf`, loaded by the caller): the mock's start
+    /// joints within the URDF's limits. `path` names this config in the error.
+    pub fn check_against_model(&self, path: &Path, spec: &UnitSpec) -> Result<(), ConfigError> {
+        for (i, (q, limit)) in self
+            .mock
+            .arm_start_rad
+            .iter()
+            .zip(&spec.arm_limits)
+            .enumerate()
+        {
+            if !(limit.lower..=limit.upper).contains(q) {
+                return Err(ConfigError::Invalid {
+                    path: path.to_owned(),
+                    error: FieldError::new(
+                        format!("mock.arm_start_rad[{i}]"),
+                        format!(
+                            "{q} rad is outside joint {i}'s limits [{}, {}] in {}",
+                            limit.lower,
+                            limit.upper,
+                            self.urdf.display()
+                        ),
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Reads and validates a unit config; errors name the file and the field.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
         config::load(path)
@@ -248,6 +283,30 @@ mod tests {
         assert_eq!(config.team_size, 2);
     }
 
+    /// The mock's start joints are held to the unit model's limits, each joint by index.
+    #[test]
+    fn mock_start_joints_outside_the_urdf_limits_are_named() {
+        let path = repo_file("configs/unit.toml");
+        let mut config = UnitConfig::from_file(&path).unwrap();
+        let spec = UnitSpec::from_file(&config.urdf).unwrap();
+        config.check_against_model(&path, &spec).unwrap();
+        for joint in 0..ARM_JOINTS {
+            let mut bad = config.clone();
+            bad.mock.arm_start_rad[joint] = spec.arm_limits[joint].upper + 0.01;
+            let message = bad
+                .check_against_model(&path, &spec)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                message.contains(&format!("mock.arm_start_rad[{joint}]"))
+                    && message.contains("unit.toml"),
+                "{message}"
+            );
+        }
+        config.mock.arm_start_rad[0] = spec.arm_limits[0].lower - 1.0;
+        assert!(config.check_against_model(&path, &spec).is_err());
+    }
+
     #[test]
     fn bad_configs_name_file_and_field() {
         let good = std::fs::read_to_string(repo_file("configs/unit.toml")).unwrap();
@@ -286,6 +345,25 @@ mod tests {
             (
                 good.replace("control = \"control.toml\"", "control = \"rate.toml\""),
                 "rate.toml",
+            ),
+            // Finite but impossible: outside the arena peers hold messages to, a heading of
+            // many turns, a load no arm carries.
+            (good.replace("x_m = 0.0", "x_m = 5000.0"), "start_pose.x_m"),
+            (
+                good.replace("y_m = -0.72", "y_m = -1e300"),
+                "start_pose.y_m",
+            ),
+            (
+                good.replace("yaw_rad = 0.0", "yaw_rad = 100.0"),
+                "start_pose.yaw_rad",
+            ),
+            (
+                good.replace("grasp_load_n = 36.8", "grasp_load_n = 1e6"),
+                "mock.grasp_load_n",
+            ),
+            (
+                good.replace("grasp_load_n = 36.8", "grasp_load_n = -1.0"),
+                "mock.grasp_load_n",
             ),
         ];
         for (i, (text, field)) in cases.into_iter().enumerate() {
