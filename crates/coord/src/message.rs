@@ -680,7 +680,7 @@ pub struct RejectCounts {
 }
 
 impl RejectCounts {
-    pub(crate) fn record(&mut self, rejection: &Rejection) {
+    pub fn record(&mut self, rejection: &Rejection) {
         let counter = match rejection {
             Rejection::Malformed { .. } => &mut self.malformed,
             Rejection::StaleKey { .. } => &mut self.stale_key,
@@ -699,6 +699,42 @@ impl RejectCounts {
             Rejection::SeqAhead { .. } => &mut self.seq_ahead,
         };
         *counter += 1;
+    }
+
+    /// Adds `other`'s counts to these, reason by reason.
+    pub fn add(&mut self, other: &RejectCounts) {
+        let RejectCounts {
+            malformed,
+            stale_key,
+            bad_mac,
+            wrong_version,
+            wrong_team,
+            unknown_sender,
+            wrong_sender,
+            non_finite,
+            out_of_bounds,
+            wrong_mission,
+            stale,
+            from_future,
+            duplicate,
+            reordered,
+            seq_ahead,
+        } = *other;
+        self.malformed += malformed;
+        self.stale_key += stale_key;
+        self.bad_mac += bad_mac;
+        self.wrong_version += wrong_version;
+        self.wrong_team += wrong_team;
+        self.unknown_sender += unknown_sender;
+        self.wrong_sender += wrong_sender;
+        self.non_finite += non_finite;
+        self.out_of_bounds += out_of_bounds;
+        self.wrong_mission += wrong_mission;
+        self.stale += stale;
+        self.from_future += from_future;
+        self.duplicate += duplicate;
+        self.reordered += reordered;
+        self.seq_ahead += seq_ahead;
     }
 
     pub fn total(&self) -> u64 {

@@ -88,6 +88,11 @@ impl Validator {
         &self.counts
     }
 
+    /// The unit this validator receives for (`None`: a monitor).
+    pub fn unit(&self) -> Option<usize> {
+        self.own_unit
+    }
+
     /// Tells the validator the mission its unit is in (the latest start it accepted,
     /// [`crate::Team::mission`]); call it after every tick. An operator stop naming an older
     /// mission is then refused ([`Rejection::WrongMission`]).
@@ -107,48 +112,97 @@ impl Validator {
     }
 
     fn check_frame(&mut self, bytes: &[u8], now_us: u64) -> Result<Envelope, Rejection> {
-        let malformed = |detail: String| Rejection::Malformed {
-            len: bytes.len(),
-            detail,
-        };
-        let frame = Frame::parse(bytes)?;
-        let expected = self.verifier.epoch();
-        if frame.epoch != expected {
-            return Err(Rejection::StaleKey {
-                got: frame.epoch,
-                expected,
-            });
-        }
-        let header: Header =
-            serde_json::from_slice(frame.json).map_err(|e| malformed(e.to_string()))?;
-        let sender = header.sender;
-        let slot = self.slot(sender)?;
-        if !self.verifier.verify(sender, &frame) {
-            return Err(Rejection::BadMac { sender });
-        }
-        if header.version != PROTOCOL_VERSION {
-            return Err(Rejection::WrongVersion {
-                got: header.version,
-            });
-        }
+        let (frame, sender, slot) = authenticate(&self.verifier, self.own_unit, bytes)?;
         let envelope: Envelope =
-            serde_json::from_slice(frame.json).map_err(|e| malformed(e.to_string()))?;
+            serde_json::from_slice(frame.json).map_err(|e| Rejection::Malformed {
+                len: bytes.len(),
+                detail: e.to_string(),
+            })?;
         if envelope.sender != sender {
-            return Err(malformed("sender read twice differently".to_owned()));
+            return Err(Rejection::Malformed {
+                len: bytes.len(),
+                detail: "sender read twice differently".to_owned(),
+            });
         }
         self.validate(envelope, slot, now_us)
     }
 
-    /// The sequence slot of a sender this unit accepts messages from.
-    fn slot(&self, sender: Sender) -> Result<usize, Rejection> {
-        let units = self.last_seq.len() - 1;
-        match sender {
-            Sender::Unit(i) if i < units && Some(i) != self.own_unit => Ok(i),
-            Sender::Unit(_) => Err(Rejection::UnknownSender { sender }),
-            Sender::Operator => Ok(units),
+    /// The admission check of the frames arriving on `expected`'s key expression (see
+    /// [`Admission`]).
+    pub fn admission(&self, expected: Sender) -> Admission {
+        Admission {
+            verifier: self.verifier.clone(),
+            own_unit: self.own_unit,
+            expected,
         }
     }
+}
 
+/// The checks of a frame that need no state — size, frame version, key epoch, the sender it
+/// claims (one this unit hears), its tag under that sender's key, protocol version — and the
+/// frame split, the sender and its sequence slot. What [`Validator::receive_frame`] does first,
+/// and all [`Admission::check`] does.
+fn authenticate<'a>(
+    verifier: &Verifier,
+    own_unit: Option<usize>,
+    bytes: &'a [u8],
+) -> Result<(Frame<'a>, Sender, usize), Rejection> {
+    let frame = Frame::parse(bytes)?;
+    let expected = verifier.epoch();
+    if frame.epoch != expected {
+        return Err(Rejection::StaleKey {
+            got: frame.epoch,
+            expected,
+        });
+    }
+    let header: Header = serde_json::from_slice(frame.json).map_err(|e| Rejection::Malformed {
+        len: bytes.len(),
+        detail: e.to_string(),
+    })?;
+    let sender = header.sender;
+    let units = verifier.team_size();
+    let slot = match sender {
+        Sender::Unit(i) if i < units && Some(i) != own_unit => i,
+        Sender::Unit(_) => return Err(Rejection::UnknownSender { sender }),
+        Sender::Operator => units,
+    };
+    if !verifier.verify(sender, &frame) {
+        return Err(Rejection::BadMac { sender });
+    }
+    if header.version != PROTOCOL_VERSION {
+        return Err(Rejection::WrongVersion {
+            got: header.version,
+        });
+    }
+    Ok((frame, sender, slot))
+}
+
+/// The stateless half of a [`Validator`], for the network's receive callback: a frame that
+/// cannot be genuine — oversize, malformed, another key epoch or protocol version, claiming a
+/// sender other than the one whose key expression it came on, or failing that sender's tag —
+/// is refused where it arrives, before it takes a slot in the bounded receive queue. Only
+/// frames signed with the sender's key then compete for the queue, so a flood of forged frames
+/// (from any session, even one holding a unit's transport credentials) cannot push a genuine
+/// frame out. Costs one HMAC per frame; the tick's validator checks the admitted frames again,
+/// with their sequence and stamp.
+#[derive(Debug, Clone)]
+pub struct Admission {
+    verifier: Verifier,
+    own_unit: Option<usize>,
+    expected: Sender,
+}
+
+impl Admission {
+    pub fn check(&self, bytes: &[u8]) -> Result<(), Rejection> {
+        let (_, sender, _) = authenticate(&self.verifier, self.own_unit, bytes)?;
+        if sender != self.expected {
+            return Err(Rejection::UnknownSender { sender });
+        }
+        Ok(())
+    }
+}
+
+impl Validator {
     /// The checks of an authenticated envelope.
     fn validate(&mut self, e: Envelope, slot: usize, now_us: u64) -> Result<Envelope, Rejection> {
         let (sender, seq) = (e.sender, e.seq);

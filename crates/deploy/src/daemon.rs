@@ -17,7 +17,9 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::KeyFile;
 use moonhaul_coord::clamp::anchor_command;
-use moonhaul_coord::message::{Body, FaultKind, MessageBounds, Sender, ARENA_HALF_WIDTH_M};
+use moonhaul_coord::message::{
+    Body, FaultKind, MessageBounds, RejectCounts, Sender, ARENA_HALF_WIDTH_M,
+};
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
 use moonhaul_core::state::PlanarPose;
 use moonhaul_core::task_config::TaskConfig;
@@ -414,7 +416,14 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     let access = Access::new(&keys, Role::Unit(unit))
         .with_context(|| format!("key file {}", args.keys.display()))?;
     let session = network::open(&net, &access).await?;
-    let links = Links::open(&session, &settings.team, unit, settings.team_size, args.hal).await?;
+    let links = Links::open(
+        &session,
+        &validator,
+        &settings.team,
+        settings.team_size,
+        args.hal,
+    )
+    .await?;
 
     hardware
         .unit()
@@ -535,10 +544,11 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         }
         drain(&links.operator, &mut inbox, &mut onboard, now_us, false);
         let before = onboard.phase();
+        let rejected = links.rejections(&inbox.validator);
         let out = onboard.tick(
             now_us,
             read.is_ok().then_some(&reading),
-            inbox.validator.counts(),
+            &rejected,
             &mut record,
         );
         let output = out.output;
@@ -766,30 +776,39 @@ struct Links {
 }
 
 impl Links {
+    /// `validator`: this unit's, whose stateless half admits frames to the peer and operator
+    /// queues.
     async fn open(
         session: &zenoh::Session,
+        validator: &Validator,
         team: &str,
-        unit: usize,
         team_size: usize,
         hal: HalKind,
     ) -> Result<Links> {
+        let unit = validator.unit().unwrap_or(usize::MAX);
         let keys = Keys::new(team);
         let mut subscribers = Vec::new();
         let peer_ready = Arc::new(Notify::new());
         let mut peers = Vec::new();
         for peer in (0..team_size).filter(|&j| j != unit) {
             let queue = FrameQueue::new(PEER_QUEUE_FRAMES, Arc::clone(&peer_ready));
-            subscribers.push(network::subscribe(session, keys.unit_state(peer), &queue).await?);
+            let admission = validator.admission(Sender::Unit(peer));
+            subscribers.push(
+                network::subscribe(session, keys.unit_state(peer), &queue, Some(admission)).await?,
+            );
             peers.push(queue);
         }
         let operator = FrameQueue::new(OPERATOR_QUEUE_FRAMES, Arc::new(Notify::new()));
-        subscribers.push(network::subscribe(session, keys.operator(), &operator).await?);
+        let admission = validator.admission(Sender::Operator);
+        subscribers
+            .push(network::subscribe(session, keys.operator(), &operator, Some(admission)).await?);
         let state =
             Outbox::spawn(network::control_publisher(session, keys.unit_state(unit)).await?);
         let (sensed, commands) = if hal == HalKind::Sim {
             let ready = Arc::new(Notify::new());
             let queue = FrameQueue::new(SENSED_QUEUE_FRAMES, Arc::clone(&ready));
-            subscribers.push(network::subscribe(session, keys.sim_sensed(unit), &queue).await?);
+            subscribers
+                .push(network::subscribe(session, keys.sim_sensed(unit), &queue, None).await?);
             let commands = network::control_publisher(session, keys.sim_command(unit)).await?;
             (Some((queue, ready)), Some(Outbox::spawn(commands)))
         } else {
@@ -804,6 +823,22 @@ impl Links {
             commands,
             _subscribers: subscribers,
         })
+    }
+
+    /// The frames the peer and operator queues refused on arrival, by reason.
+    fn refused_on_arrival(&self) -> RejectCounts {
+        let mut total = self.operator.refused();
+        for q in &self.peers {
+            total.add(&q.refused());
+        }
+        total
+    }
+
+    /// Every rejection by reason: the validator's and the arrival checks'.
+    fn rejections(&self, validator: &Validator) -> RejectCounts {
+        let mut total = self.refused_on_arrival();
+        total.add(validator.counts());
+        total
     }
 
     /// Every receive queue's counts, summed.
@@ -842,7 +877,8 @@ struct Report {
 
 impl Report {
     fn tick(&mut self, unit: usize, validator: &Validator, links: &Links) {
-        let rejected = validator.counts().total();
+        let counts = links.rejections(validator);
+        let rejected = counts.total();
         let net = links.received();
         if rejected == self.rejected && net.refused() == self.refused {
             return;
@@ -856,7 +892,7 @@ impl Report {
         warn!(
             unit,
             rejected,
-            counts = ?validator.counts(),
+            ?counts,
             dropped = net.dropped,
             oversize = net.oversize,
             "frames refused"
@@ -866,11 +902,12 @@ impl Report {
     fn totals(&self, unit: usize, validator: &Validator, links: &Links) {
         let net = links.received();
         let state = links.state.counts();
+        let counts = links.rejections(validator);
         info!(
             unit,
             received = net.received,
-            rejected = validator.counts().total(),
-            counts = ?validator.counts(),
+            rejected = counts.total(),
+            ?counts,
             dropped = net.dropped,
             oversize = net.oversize,
             published = state.sent,

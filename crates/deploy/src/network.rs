@@ -66,7 +66,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use moonhaul_coord::auth::{self, KeyFile, KeyMismatch};
-use moonhaul_coord::message::Sender;
+use moonhaul_coord::message::{RejectCounts, Rejection, Sender};
+use moonhaul_coord::validator::Admission;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use zenoh::qos::{CongestionControl, Priority};
@@ -537,6 +538,8 @@ pub struct FrameQueue<T = Sample> {
     received: AtomicU64,
     dropped: AtomicU64,
     oversize: AtomicU64,
+    /// Frames refused on arrival by the subscription's admission check, by reason.
+    refused: Mutex<RejectCounts>,
     ready: Arc<tokio::sync::Notify>,
 }
 
@@ -550,8 +553,22 @@ impl<T> FrameQueue<T> {
             received: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
             oversize: AtomicU64::new(0),
+            refused: Mutex::new(RejectCounts::default()),
             ready,
         })
+    }
+
+    /// Counts a frame refused on arrival (it never takes a slot).
+    pub fn refuse(&self, rejection: &Rejection) {
+        self.refused
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .record(rejection);
+    }
+
+    /// The frames refused on arrival so far, by reason.
+    pub fn refused(&self) -> RejectCounts {
+        *self.refused.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Takes in one frame of `len` bytes (the zenoh callback): never blocks beyond the queue's
@@ -599,11 +616,14 @@ impl<T> FrameQueue<T> {
 }
 
 /// A subscription on `key` (remote publications only) feeding `queue`; undeclared when the
-/// returned subscriber is dropped.
+/// returned subscriber is dropped. With `admission` (the key's sender), a frame that cannot be
+/// genuine is refused and counted on arrival, on zenoh's thread, before it takes a queue slot
+/// ([`Admission`]): a flood of forged frames cannot push genuine ones out.
 pub async fn subscribe(
     session: &zenoh::Session,
     key: String,
     queue: &Arc<FrameQueue>,
+    admission: Option<Admission>,
 ) -> Result<zenoh::pubsub::Subscriber<()>, NetworkError> {
     let queue = Arc::clone(queue);
     session
@@ -611,6 +631,14 @@ pub async fn subscribe(
         .allowed_origin(Locality::Remote)
         .callback(move |sample| {
             let len = sample.payload().len();
+            if let (Some(admission), true) = (&admission, len <= MAX_FRAME_BYTES) {
+                // Contiguous payloads are borrowed; a fragmented one is copied, bounded by
+                // the frame cap.
+                if let Err(rejection) = admission.check(&sample.payload().to_bytes()) {
+                    queue.refuse(&rejection);
+                    return;
+                }
+            }
             queue.push(sample, len)
         })
         .await
@@ -852,7 +880,9 @@ mod tests {
     ) -> Vec<String> {
         let team = Keys::new("moonhaul");
         let q: Arc<FrameQueue> = queue(64);
-        let _sub = subscribe(listener, team.team_all(), &q).await.unwrap();
+        let _sub = subscribe(listener, team.team_all(), &q, None)
+            .await
+            .unwrap();
         // Let the subscription's declaration reach the speaker.
         tokio::time::sleep(Duration::from_millis(300)).await;
         for key in keys {
@@ -899,7 +929,9 @@ mod tests {
         let port = free_loopback_port().unwrap();
         let listener = session(&keys, Role::Unit(0), &[], &[endpoint(port)]).await;
         let q: Arc<FrameQueue> = queue(64);
-        let _sub = subscribe(&listener, team.team_all(), &q).await.unwrap();
+        let _sub = subscribe(&listener, team.team_all(), &q, None)
+            .await
+            .unwrap();
         // Another team's key file (the same team name, other secrets), and no credentials at
         // all (zenoh's defaults).
         let stranger = KeyFile::generate("moonhaul", 2, 1).unwrap();
@@ -927,6 +959,82 @@ mod tests {
         }
     }
 
+    /// A session holding unit 1's transport credentials floods unit 1's key with frames that
+    /// cannot be genuine (sealed with another team's keys, claiming the operator, garbage), a
+    /// hundred for each genuine frame of unit 1: the forged ones are refused on arrival, by
+    /// reason, and never take a slot of the 8-frame queue, so every genuine frame is there
+    /// when the tick drains it. Without the admission check the flood evicts them.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_flood_of_forged_frames_never_pushes_out_a_genuine_one() {
+        use moonhaul_coord::message::{Body, Envelope, OperatorCommand, PROTOCOL_VERSION};
+        let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
+        let rogue = KeyFile::generate("moonhaul", 2, 1).unwrap();
+        let team = Keys::new("moonhaul");
+        let port = free_loopback_port().unwrap();
+        let listener = session(&keys, Role::Unit(0), &[], &[endpoint(port)]).await;
+        let q: Arc<FrameQueue> = queue(8);
+        let admission = moonhaul_coord::Validator::monitor(&keys).admission(Sender::Unit(1));
+        let key = team.unit_state(1);
+        let _sub = subscribe(&listener, key.clone(), &q, Some(admission))
+            .await
+            .unwrap();
+        let flooder = session(&keys, Role::Unit(1), &[endpoint(port)], &[]).await;
+        assert!(connected(&flooder, Duration::from_secs(10)).await);
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let envelope = |sender, seq| Envelope {
+            version: PROTOCOL_VERSION,
+            team: "moonhaul".into(),
+            sender,
+            seq,
+            stamp_us: seq,
+            body: Body::Operator(OperatorCommand::Start { mission: 1 }),
+        };
+        let genuine = keys.sealer(Sender::Unit(1)).unwrap();
+        let forged = rogue.sealer(Sender::Unit(1)).unwrap();
+        let impostor = keys.sealer(Sender::Operator).unwrap();
+        let put = |bytes: Vec<u8>| {
+            flooder
+                .put(key.as_str(), bytes)
+                .congestion_control(CongestionControl::Block)
+        };
+        let (rounds, per_round) = (20u64, 100u64);
+        let mut heard = Vec::new();
+        for round in 0..rounds {
+            // The genuine frame first: a drop-oldest queue flooded after it would lose it.
+            let seq = round * 1000 + 999;
+            put(genuine.seal(&envelope(Sender::Unit(1), seq)).unwrap())
+                .await
+                .unwrap();
+            for k in 0..per_round {
+                let seq = round * 1000 + k;
+                let bytes = match k % 3 {
+                    0 => forged.seal(&envelope(Sender::Unit(1), seq)).unwrap(),
+                    1 => impostor.seal(&envelope(Sender::Operator, seq)).unwrap(),
+                    _ => vec![0xa5; 200],
+                };
+                put(bytes).await.unwrap();
+            }
+            // The tick drains its queue every 20 ms.
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while heard.len() as u64 <= round && Instant::now() < deadline {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                q.drain(|s| heard.push(s.payload().to_bytes().into_owned()));
+            }
+        }
+        let refused = q.refused();
+        assert_eq!(heard.len() as u64, rounds, "{:?} {refused:?}", q.counts());
+        assert_eq!(q.counts().dropped, 0);
+        assert_eq!(
+            refused.bad_mac + refused.unknown_sender + refused.malformed,
+            rounds * per_round,
+            "{refused:?}"
+        );
+        assert!(refused.bad_mac > 0 && refused.unknown_sender > 0 && refused.malformed > 0);
+        for s in [flooder, listener] {
+            s.close().await.unwrap();
+        }
+    }
+
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn the_transport_drops_frames_over_the_cap_and_keeps_the_link() {
         let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
@@ -934,7 +1042,9 @@ mod tests {
         let port = free_loopback_port().unwrap();
         let listener = session(&keys, Role::Unit(0), &[], &[endpoint(port)]).await;
         let q: Arc<FrameQueue> = queue(64);
-        let _sub = subscribe(&listener, team.operator(), &q).await.unwrap();
+        let _sub = subscribe(&listener, team.operator(), &q, None)
+            .await
+            .unwrap();
         let operator = session(&keys, Role::Operator, &[endpoint(port)], &[]).await;
         assert!(connected(&operator, Duration::from_secs(10)).await);
         tokio::time::sleep(Duration::from_millis(300)).await;
@@ -974,12 +1084,16 @@ mod tests {
         let port = free_loopback_port().unwrap();
         let listener = session(&keys, Role::Unit(1), &[], &[endpoint(port)]).await;
         let q: Arc<FrameQueue> = queue(1 << 14);
-        let _sub = subscribe(&listener, team.unit_state(0), &q).await.unwrap();
+        let _sub = subscribe(&listener, team.unit_state(0), &q, None)
+            .await
+            .unwrap();
         let unit = session(&keys, Role::Unit(0), &[endpoint(port)], &[]).await;
         assert!(connected(&unit, Duration::from_secs(10)).await);
         // Its own state never comes back to it.
         let own: Arc<FrameQueue> = queue(16);
-        let _own_sub = subscribe(&unit, team.unit_state(0), &own).await.unwrap();
+        let _own_sub = subscribe(&unit, team.unit_state(0), &own, None)
+            .await
+            .unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
         let outbox = Outbox::spawn(control_publisher(&unit, team.unit_state(0)).await.unwrap());
         let n = 10_000u32;
