@@ -327,6 +327,8 @@ pub struct ScriptInput<'a> {
     pub profile: &'a VelocityProfile,
     /// U_{k−1}: IK is warm-started from it.
     pub previous: &'a UnitCommand,
+    /// This unit's gripper has opened.
+    pub grasp_open: bool,
 }
 
 /// The scripted controller as a controller of the deployed stack; see the module docs. One per
@@ -389,6 +391,16 @@ impl PhaseScript {
             }
             self.phase = input.phase;
         }
+        // Released, the arm holds still until the mission ends: there is no chain left to
+        // comply with, and a free wrist following its own drift would carry the lift
+        // estimate (the payload's point through the grasp, up to 0.5 m away) above the gate's
+        // resting height, so the placement never completes (measured with a 1 m load).
+        if input.grasp_open && input.phase == Phase::Place {
+            return Ok(UnitCommand {
+                wheel_velocity_radps: [0.0; WHEEL_JOINTS],
+                arm_position_rad: input.previous.arm_position_rad,
+            });
+        }
         let p = &self.plan;
         let t = input.phase_time_s;
         let sensed = ee_in_base(input.spec, &input.own.arm.position_rad)?;
@@ -418,12 +430,16 @@ impl PhaseScript {
             // `place_press_m`, no more (the drives would strain and the clamp stop the team).
             // Only in the slow touchdown descent: in the fast one the arms lag their command
             // by about as much, and the bound would slow it to a press the touchdown rule
-            // cannot tell from contact.
+            // cannot tell from contact. The bound stops the descent and never raises it: once
+            // the ground carries the load, the drives' gravity feed-forward (sized for half the
+            // payload) pushes the end effector up past its command, and a command following the
+            // sensed height up lifted one end of a long heavy load off the ground, tipping it
+            // 12° and never releasing (measured, tests/data/payload_long_heavy.urdf).
             Phase::Place if t >= p.place_duration_s => {
                 let planned = p.place_lift_m(self.place_from_m, t);
                 let pressed = sensed.translation.z - rest.translation.z - p.place_press_m;
                 self.pressing |= pressed > planned;
-                planned.max(pressed)
+                planned.max(pressed).min(self.lift_m)
             }
             Phase::Place => p.place_lift_m(self.place_from_m, t),
             Phase::Idle => self.lift_m,
@@ -583,6 +599,7 @@ mod tests {
                     accel_mps2: 0.2,
                 },
                 previous: &previous,
+                grasp_open: false,
             };
             previous = script.command(&input).unwrap();
         }
@@ -617,6 +634,88 @@ mod tests {
             (shared - bound).abs() < 0.3,
             "{shared}° (expected {bound}°)"
         );
+    }
+
+    /// In the slow touchdown descent the press bound stops the command where the chain
+    /// stopped, and never raises it when the drives push the end effector up (the ground
+    /// carries the load the gravity feed-forward still lifts); once the gripper opens the arm
+    /// holds its last command and the wheels stop.
+    #[test]
+    fn touchdown_never_raises_the_command_and_a_released_arm_holds() {
+        let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
+        let plan = MissionPlan::shipped().unwrap();
+        let q_rest = [0.3, 0.5, -0.1, 1.2, 0.0, 0.7, 0.1];
+        let mut rest_state = UnitState::default();
+        rest_state.arm.position_rad = q_rest;
+        let mut peer_state = rest_state;
+        peer_state.base_pose.y_m = 1.6;
+        peer_state.base_pose.yaw_rad = std::f64::consts::PI;
+        let reference = GraspReference::capture(&spec, &rest_state, &peer_state).unwrap();
+        let rest = reference.ee_rest_in_base;
+        // The end effector pushed up from 2 cm to 6 cm above its rest height, tick by tick.
+        let raised = |dz: f64| {
+            let mut target = rest;
+            target.translation.z += dz;
+            let in_chain = spec.ground_to_base().inverse() * target;
+            let mut s = rest_state;
+            s.arm.position_rad =
+                ik::solve(&spec.arm, &in_chain, &q_rest, &IkSettings::default()).unwrap();
+            s
+        };
+        let profile = VelocityProfile {
+            distance_m: 1.0,
+            speed_mps: 0.2,
+            accel_mps2: 0.2,
+        };
+        let mut script = PhaseScript::new(plan);
+        let mut previous = UnitCommand {
+            arm_position_rad: q_rest,
+            ..Default::default()
+        };
+        let mut heights = Vec::new();
+        for tick in 0..40 {
+            let own = raised(0.02 + 0.001 * tick as f64);
+            let input = ScriptInput {
+                spec: &spec,
+                phase: Phase::Place,
+                phase_time_s: plan.place_duration_s + 0.02 * tick as f64,
+                reference: &reference,
+                own: &own,
+                peer: &peer_state,
+                phase_start_base: &rest_state.base_pose,
+                goal: &PhaseGoal::default(),
+                profile: &profile,
+                previous: &previous,
+                grasp_open: false,
+            };
+            previous = script.command(&input).unwrap();
+            heights.push(
+                ee_in_base(&spec, &previous.arm_position_rad)
+                    .unwrap()
+                    .translation
+                    .z,
+            );
+        }
+        for pair in heights.windows(2) {
+            assert!(pair[1] <= pair[0] + 2e-4, "the command rose: {heights:?}");
+        }
+        let own = raised(0.08);
+        let input = ScriptInput {
+            spec: &spec,
+            phase: Phase::Place,
+            phase_time_s: plan.place_duration_s + 1.0,
+            reference: &reference,
+            own: &own,
+            peer: &peer_state,
+            phase_start_base: &rest_state.base_pose,
+            goal: &PhaseGoal::default(),
+            profile: &profile,
+            previous: &previous,
+            grasp_open: true,
+        };
+        let held = script.command(&input).unwrap();
+        assert_eq!(held.arm_position_rad, previous.arm_position_rad);
+        assert_eq!(held.wheel_velocity_radps, [0.0; WHEEL_JOINTS]);
     }
 
     #[test]

@@ -690,6 +690,7 @@ impl Onboard {
                         goal,
                         profile: &profile,
                         previous: &self.previous,
+                        grasp_open: self.grasp_open,
                     };
                     match script.command(&input) {
                         Ok(desired) => {
