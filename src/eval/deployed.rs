@@ -493,6 +493,19 @@ mod tests {
         assert_eq!(TrackingD::default().mean(), None);
     }
 
+    /// The shipped scene, deployed stack and scripted plan.
+    fn shipped_stack() -> (SceneModel, Stack, MissionPlan) {
+        let unit = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
+        let stack = Stack {
+            team: unit.team_settings(),
+            gate: GateConfig::shipped().unwrap(),
+            sync: SyncConfig::shipped().unwrap(),
+            tasks: TaskConfig::shipped().unwrap(),
+        };
+        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
+        (scene, stack, MissionPlan::shipped().unwrap())
+    }
+
     /// The scripted controller through the whole deployed stack, on the paper's randomized
     /// terrain (2 cm peak to peak): the goal's ground lies a few millimetres above or below
     /// the start's (simulator truth). Higher, a placement aiming at a fixed depth below the
@@ -502,15 +515,7 @@ mod tests {
     /// failed most.) Every release is near the ground.
     #[test]
     fn scripted_missions_touch_down_on_other_ground_and_complete() {
-        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
-        let unit = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
-        let stack = Stack {
-            team: unit.team_settings(),
-            gate: GateConfig::shipped().unwrap(),
-            sync: SyncConfig::shipped().unwrap(),
-            tasks: TaskConfig::shipped().unwrap(),
-        };
-        let plan = MissionPlan::shipped().unwrap();
+        let (scene, stack, plan) = shipped_stack();
         let run = Episodes {
             payload: PayloadKind::Sledge,
             randomize: true,
@@ -561,15 +566,7 @@ mod tests {
         use moonhaul_sim::task::PhaseTask;
         use moonhaul_sim::Env;
 
-        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
-        let unit = UnitConfig::from_file(&repo_file("configs/unit.toml")).unwrap();
-        let stack = Stack {
-            team: unit.team_settings(),
-            gate: GateConfig::shipped().unwrap(),
-            sync: SyncConfig::shipped().unwrap(),
-            tasks: TaskConfig::shipped().unwrap(),
-        };
-        let plan = MissionPlan::shipped().unwrap();
+        let (scene, stack, plan) = shipped_stack();
         let run = Episodes {
             payload: PayloadKind::Bricks,
             randomize: true,

@@ -253,6 +253,27 @@ impl HandOverStarts {
     }
 }
 
+impl World {
+    /// Starts this world's next episode in its freshly reset `env`.
+    fn begin(
+        &mut self,
+        task: &PhaseTask,
+        scene: &SceneModel,
+        env: &Env,
+        state: &EnvState,
+    ) -> Result<(), SimError> {
+        self.episode = begin(
+            task,
+            scene,
+            env,
+            state,
+            self.handover.as_deref(),
+            &mut self.rng,
+        )?;
+        Ok(())
+    }
+}
+
 /// A new episode in a freshly reset world: at its hand-over, or settled.
 fn begin(
     task: &PhaseTask,
@@ -358,14 +379,7 @@ impl VecEnv for PhaseVecEnv {
         let scene = self.batch.scene();
         let (env, state) = (&self.batch.envs()[w], &self.batch.states()[w]);
         let world = &mut self.worlds[w];
-        world.episode = begin(
-            task,
-            scene,
-            env,
-            state,
-            world.handover.as_deref(),
-            &mut world.rng,
-        )?;
+        world.begin(task, scene, env, state)?;
         observe(task, scene, env, state, world)?;
         let i = index % UNITS;
         obs.copy_from_slice(&world.obs[i]);
@@ -477,14 +491,7 @@ fn task_step(
         world.final_critic = world.critic;
         env.reset();
         env.state_into(scene, state);
-        world.episode = begin(
-            task,
-            scene,
-            env,
-            state,
-            world.handover.as_deref(),
-            &mut world.rng,
-        )?;
+        world.begin(task, scene, env, state)?;
     }
     observe(task, scene, env, state, world)
 }
