@@ -149,6 +149,9 @@ pub struct Clamp {
     sensed: StackedState,
     /// The task-space image of the candidate T(t).
     candidate: StackedState,
+    /// The last step's search spent its whole `search.max_evaluations` (its result may then
+    /// fall short of the maximum; see the module docs).
+    search_exhausted: bool,
 }
 
 impl Clamp {
@@ -179,7 +182,14 @@ impl Clamp {
             control_period_s,
             sensed: team.clone(),
             candidate: team,
+            search_exhausted: false,
         })
+    }
+
+    /// Whether the last step's search for narrow admissible stretches ran out of its
+    /// evaluation budget (a hold or a step short of t_max may then hide an admissible one).
+    pub fn search_exhausted(&self) -> bool {
+        self.search_exhausted
     }
 
     /// One tick: writes U_k for every unit into `issued` and reports t_max, d and the binding
@@ -190,6 +200,7 @@ impl Clamp {
         hold: Option<HoldReason>,
         issued: &mut [UnitCommand],
     ) -> Result<ClampReport, ClampError> {
+        self.search_exhausted = false;
         self.check(input, issued.len())?;
         if let Some(reason) = hold {
             return Ok(self.hold(input, reason, None, issued));
@@ -216,6 +227,7 @@ impl Clamp {
             } else {
                 self.island_top(input, lower, upper, lipschitz, &mut budget)?
             };
+            self.search_exhausted = budget == 0;
             if let Some(best) = best {
                 return Ok(self.issue(input, best.t, best.d, issued));
             }
