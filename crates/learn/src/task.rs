@@ -62,13 +62,21 @@ pub fn make_env(
         scene.config.randomization.payloads = vec![kind];
     }
     let starts = match (&world.handovers, phase) {
-        (Some(path), Some(phase)) => HandOverStarts {
-            handovers: HandOverFile::load(path, phase)?
-                .into_iter()
-                .map(Arc::new)
-                .collect(),
-            fraction: world.handover_fraction,
-        },
+        (Some(path), Some(phase)) => {
+            let handovers = HandOverFile::load(path, phase)?;
+            // Checked here, where the file can be named; the replay checks again.
+            for (k, h) in handovers.iter().enumerate() {
+                h.check(&scene)
+                    .map_err(|reason| moonhaul_sim::handover::HandOverFileError {
+                        path: path.clone(),
+                        reason: format!("hand-over {k} into {phase}: {reason}"),
+                    })?;
+            }
+            HandOverStarts {
+                handovers: handovers.into_iter().map(Arc::new).collect(),
+                fraction: world.handover_fraction,
+            }
+        }
         _ => HandOverStarts::default(),
     };
     Ok(Box::new(

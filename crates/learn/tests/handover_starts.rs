@@ -117,4 +117,34 @@ fn a_config_names_its_handover_file_or_the_phase_it_lacks() {
         error.contains("handover_transport_box.json") && error.contains("into place"),
         "{error}"
     );
+
+    // A capture no mission can have made: a command beyond the joint limits, a non-finite
+    // onboard state, too many ticks. Refused by file and capture before any replay.
+    let text = std::fs::read_to_string(fixture()).unwrap();
+    let file: HandOverFile = serde_json::from_str(&text).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut bent = file.clone();
+    bent.handovers[0].commands[10][1].arm_position_rad[3] = 40.0;
+    let mut odd = file.clone();
+    odd.handovers[0].units[0].last_t_max = 7.0;
+    let mut long = file.clone();
+    let tick = long.handovers[0].commands[0];
+    long.handovers[0].commands = vec![tick; moonhaul_sim::handover::MAX_REPLAY_TICKS + 1];
+    for (name, forged, needle) in [
+        ("bent", bent, "tick 10: unit 1"),
+        ("odd", odd, "unit 0's onboard state"),
+        ("long", long, "ticks of commands"),
+    ] {
+        let path = dir.path().join(format!("{name}.json"));
+        std::fs::write(&path, serde_json::to_vec(&forged).unwrap()).unwrap();
+        let mut config = transport_config(1.0);
+        config.world.as_mut().unwrap().handovers = Some(path);
+        let error = make_env(&config, 2, None).err().unwrap().to_string();
+        assert!(
+            error.contains(&format!("{name}.json"))
+                && error.contains("hand-over 0")
+                && error.contains(needle),
+            "{error}"
+        );
+    }
 }

@@ -19,6 +19,7 @@
 
 use std::path::{Path, PathBuf};
 
+use moonhaul_coord::message::MessageBounds;
 use moonhaul_core::handover::UnitHandOver;
 use moonhaul_core::state::{Phase, UnitCommand, ARM_JOINTS};
 use serde::{Deserialize, Serialize};
@@ -37,6 +38,9 @@ const MAX_FILE_BYTES: u64 = 256 << 20;
 /// the tolerance admits another build's rounding, not another world.
 pub const REPLAY_TOLERANCE_M: f64 = 0.005;
 pub const REPLAY_TOLERANCE_RAD: f64 = 0.01;
+/// The most commands a capture may hold: 200 s at 50 Hz, beyond any mission (the deployed
+/// evaluation ends one at 60 s). Bounds the work a replay can be asked to do.
+pub const MAX_REPLAY_TICKS: usize = 10_000;
 
 /// One mission's hand-over into `phase`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -98,6 +102,72 @@ impl HandOver {
         }
     }
 
+    /// Refuses a capture no deployed mission can have produced: more commands than
+    /// [`MAX_REPLAY_TICKS`], a command beyond the unit's joint or wheel-speed bounds (those a
+    /// peer holds messages to, [`MessageBounds`]), or a non-finite number in the onboard state or
+    /// the captured truth. The replay then steps only physical commands.
+    pub fn check(&self, scene: &SceneModel) -> Result<(), String> {
+        if self.commands.len() > MAX_REPLAY_TICKS {
+            return Err(format!(
+                "{} ticks of commands, more than the {MAX_REPLAY_TICKS} a mission can last",
+                self.commands.len()
+            ));
+        }
+        let bounds = MessageBounds::of_unit(&scene.spec);
+        let command_ok = |c: &UnitCommand| {
+            c.arm_position_rad
+                .iter()
+                .zip(&bounds.arm_position_rad)
+                .all(|(q, (lo, hi))| (*lo..=*hi).contains(q))
+                && c.wheel_velocity_radps
+                    .iter()
+                    .zip(&bounds.wheel_velocity_radps)
+                    .all(|(w, max)| w.abs() <= *max)
+        };
+        for (tick, commands) in self.commands.iter().enumerate() {
+            if let Some(unit) = commands.iter().position(|c| !command_ok(c)) {
+                return Err(format!(
+                    "tick {tick}: unit {unit}'s command is beyond its joint or wheel-speed bounds"
+                ));
+            }
+        }
+        for (i, u) in self.units.iter().enumerate() {
+            let r = &u.reference;
+            let finite = command_ok(&u.command)
+                && u.sensed.arm.position_rad.iter().all(|v| v.is_finite())
+                && u.sensed.arm.velocity_radps.iter().all(|v| v.is_finite())
+                && u.sensed.wheels.velocity_radps.iter().all(|v| v.is_finite())
+                && (0.0..=1.0).contains(&u.last_t_max)
+                && [
+                    u.odometry,
+                    u.phase_start_base,
+                    u.sensed.base_pose,
+                    r.peer_base_rest,
+                ]
+                .iter()
+                .all(|p| p.x_m.is_finite() && p.y_m.is_finite() && p.yaw_rad.is_finite())
+                && [r.ee_rest_in_base, r.peer_ee_rest_in_base]
+                    .iter()
+                    .all(|pose| {
+                        pose.translation.vector.iter().all(|v| v.is_finite())
+                            && pose.rotation.coords.iter().all(|v| v.is_finite())
+                    });
+            if !finite {
+                return Err(format!(
+                    "unit {i}'s onboard state holds a non-finite or impossible value"
+                ));
+            }
+        }
+        let truth = self
+            .payload_position_m
+            .iter()
+            .chain(self.arm_position_rad.iter().flatten());
+        if !truth.clone().all(|v| v.is_finite()) {
+            return Err("the captured world holds a non-finite value".into());
+        }
+        Ok(())
+    }
+
     /// How far `state` lies from the captured world: the payload's distance, m, and the
     /// largest arm joint difference, rad.
     pub fn distance_to(&self, state: &EnvState) -> (f64, f64) {
@@ -117,6 +187,10 @@ impl Env {
     /// The world of `handover`, rebuilt from its seed and replayed through the hand-over tick,
     /// checked against the captured truth; its resets restore the hand-over.
     pub fn replay(scene: &SceneModel, handover: &HandOver) -> Result<Env, SimError> {
+        handover.check(scene).map_err(|reason| SimError::Config {
+            field: "handover",
+            reason,
+        })?;
         let mut env = Env::new(scene, handover.world_seed, handover.env_options())?;
         for commands in &handover.commands {
             env.step(scene, commands);
