@@ -390,16 +390,7 @@ mod tests {
     }
 
     fn state(x: f64, y: f64, yaw: f64, q: [f64; ARM_JOINTS]) -> UnitState {
-        let mut s = UnitState {
-            base_pose: PlanarPose {
-                x_m: x,
-                y_m: y,
-                yaw_rad: yaw,
-            },
-            ..Default::default()
-        };
-        s.arm.position_rad = q;
-        s
+        UnitState::at(x, y, yaw, q)
     }
 
     #[test]

@@ -556,18 +556,7 @@ mod tests {
         let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
         let plan = MissionPlan::shipped().unwrap();
         let q_rest = [0.3, 0.5, -0.1, 1.2, 0.0, 0.7, 0.1];
-        let at = |x: f64, y: f64, yaw: f64, q: [f64; 7]| {
-            let mut s = UnitState {
-                base_pose: PlanarPose {
-                    x_m: x,
-                    y_m: y,
-                    yaw_rad: yaw,
-                },
-                ..Default::default()
-            };
-            s.arm.position_rad = q;
-            s
-        };
+        let at = UnitState::at;
         let own_rest = at(0.0, -0.8, 0.0, q_rest);
         let peer_rest = at(0.0, 0.8, std::f64::consts::PI, q_rest);
         let reference = GraspReference::capture(&spec, &own_rest, &peer_rest).unwrap();
@@ -645,11 +634,8 @@ mod tests {
         let spec = UnitSpec::from_file(&repo_file("assets/unit.urdf")).unwrap();
         let plan = MissionPlan::shipped().unwrap();
         let q_rest = [0.3, 0.5, -0.1, 1.2, 0.0, 0.7, 0.1];
-        let mut rest_state = UnitState::default();
-        rest_state.arm.position_rad = q_rest;
-        let mut peer_state = rest_state;
-        peer_state.base_pose.y_m = 1.6;
-        peer_state.base_pose.yaw_rad = std::f64::consts::PI;
+        let rest_state = UnitState::at(0.0, 0.0, 0.0, q_rest);
+        let peer_state = UnitState::at(0.0, 1.6, std::f64::consts::PI, q_rest);
         let reference = GraspReference::capture(&spec, &rest_state, &peer_state).unwrap();
         let rest = reference.ee_rest_in_base;
         // The end effector pushed up from 2 cm to 6 cm above its rest height, tick by tick.
@@ -672,23 +658,27 @@ mod tests {
             arm_position_rad: q_rest,
             ..Default::default()
         };
+        // The slow descent `after_s` in, the own arm at `own`.
+        let mut command =
+            |own: &UnitState, after_s: f64, grasp_open: bool, previous: &UnitCommand| {
+                script.command(&ScriptInput {
+                    spec: &spec,
+                    phase: Phase::Place,
+                    phase_time_s: plan.place_duration_s + after_s,
+                    reference: &reference,
+                    own,
+                    peer: &peer_state,
+                    phase_start_base: &rest_state.base_pose,
+                    goal: &PhaseGoal::default(),
+                    profile: &profile,
+                    previous,
+                    grasp_open,
+                })
+            };
         let mut heights = Vec::new();
         for tick in 0..40 {
             let own = raised(0.02 + 0.001 * tick as f64);
-            let input = ScriptInput {
-                spec: &spec,
-                phase: Phase::Place,
-                phase_time_s: plan.place_duration_s + 0.02 * tick as f64,
-                reference: &reference,
-                own: &own,
-                peer: &peer_state,
-                phase_start_base: &rest_state.base_pose,
-                goal: &PhaseGoal::default(),
-                profile: &profile,
-                previous: &previous,
-                grasp_open: false,
-            };
-            previous = script.command(&input).unwrap();
+            previous = command(&own, 0.02 * tick as f64, false, &previous).unwrap();
             heights.push(
                 ee_in_base(&spec, &previous.arm_position_rad)
                     .unwrap()
@@ -699,21 +689,7 @@ mod tests {
         for pair in heights.windows(2) {
             assert!(pair[1] <= pair[0] + 2e-4, "the command rose: {heights:?}");
         }
-        let own = raised(0.08);
-        let input = ScriptInput {
-            spec: &spec,
-            phase: Phase::Place,
-            phase_time_s: plan.place_duration_s + 1.0,
-            reference: &reference,
-            own: &own,
-            peer: &peer_state,
-            phase_start_base: &rest_state.base_pose,
-            goal: &PhaseGoal::default(),
-            profile: &profile,
-            previous: &previous,
-            grasp_open: true,
-        };
-        let held = script.command(&input).unwrap();
+        let held = command(&raised(0.08), 1.0, true, &previous).unwrap();
         assert_eq!(held.arm_position_rad, previous.arm_position_rad);
         assert_eq!(held.wheel_velocity_radps, [0.0; WHEEL_JOINTS]);
     }

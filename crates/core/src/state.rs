@@ -143,6 +143,23 @@ pub struct UnitCommand {
     pub arm_position_rad: [f64; ARM_JOINTS],
 }
 
+#[cfg(test)]
+impl UnitState {
+    /// A unit at rest at base pose (`x`, `y`, `yaw`) with arm joints `q` (tests).
+    pub(crate) fn at(x: f64, y: f64, yaw: f64, q: [f64; ARM_JOINTS]) -> Self {
+        let mut s = UnitState {
+            base_pose: PlanarPose {
+                x_m: x,
+                y_m: y,
+                yaw_rad: yaw,
+            },
+            ..Default::default()
+        };
+        s.arm.position_rad = q;
+        s
+    }
+}
+
 impl UnitCommand {
     /// Splits a policy action u⁽ⁱ⁾ = [ω_left, ω_right, q₁ … q₇].
     pub fn from_action(action: &[f64; UNIT_ACTION_DIM]) -> Self {

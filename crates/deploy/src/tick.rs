@@ -667,6 +667,7 @@ impl Onboard {
         };
         let profile = self.tasks.profile();
         let phase_time_s = now_us.saturating_sub(self.episode.start_us) as f64 * 1e-6;
+        let peer = self.peer_index();
         let failed = match (&mut self.controller, policy_slot(phase), obs) {
             (Active::Learned(policies), Some(slot), Some(obs)) => {
                 let (policy, scratch, _) = &mut policies[slot];
@@ -685,7 +686,7 @@ impl Onboard {
                         phase_time_s,
                         reference,
                         own,
-                        peer: &self.sensed[(self.unit + 1) % self.sensed.len()],
+                        peer: &self.sensed[peer],
                         phase_start_base: &self.episode.start_base,
                         goal,
                         profile: &profile,
