@@ -40,11 +40,23 @@
 //!
 //! A log without its footer (a killed world, a copy cut short) is summarized from every frame
 //! it holds — all but at most its last second — and says so. A frame stamped before the
-//! previous one, more than [`MAX_FRAME_GAP_S`] after it (a clock jump: the mission's real span
-//! ends there) or with a non-finite height is left out and named. A trial that cannot be
-//! summarized (an unreadable log, no frames, no lift) is named with the reason and the others
-//! are still summarized; only when none can be is it an error. Each trial's `unread` lists what
-//! was not read, in `summary.json` and below the table.
+//! previous one or more than [`MAX_FRAME_GAP_S`] after it (a clock jump: the mission's real
+//! span ends there) is left out and named. A value no mission can have logged is an error for
+//! its trial, naming the file, the frame and the field ([`check_frame`]): a non-finite number,
+//! a payload height outside [`PAYLOAD_HEIGHT_RANGE_M`], a position beyond
+//! [`MAX_WORLD_EXTENT_M`], a tilt outside 0–180°, an orientation that is not a unit
+//! quaternion, a team whose size changes between frames, a tick that does not advance, or a
+//! log spanning more than the longest mission a world runs ([`MAX_MISSION_S`]). So is a world
+//! log none of whose frames carries a unit's phase: its phases cannot be timed. A trial that
+//! cannot be summarized (an unreadable log, no frames, no lift) is named with the reason and
+//! the others are still summarized; only when none can be is it an error.
+//!
+//! The unit logs expected are `unit-0.mcap` … one per unit of the world log's team. One that
+//! is missing, damaged, of another kind, of another unit, or holding an impossible tick record
+//! ([`check_tick`]: a t_max outside [0, 1], a negative or non-finite tracking d, time or ticks
+//! running backwards) is left out of the clamp figures and the stop's reason, and named; so is
+//! a `unit-<i>.mcap` beyond the team. Each trial's `unread` lists what was not read, in
+//! `summary.json` and below the table.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -57,6 +69,10 @@ use moonhaul_core::state::Phase;
 use moonhaul_deploy::mission_log::{read_unit_log_contents, read_world_log_contents, LogEnd};
 use moonhaul_deploy::record::{TickRecord, WorldFrame};
 use plotters::prelude::*;
+
+use moonhaul_coord::auth::MAX_KEY_FILE_UNITS;
+
+use crate::mission::world::MAX_MISSION_S;
 use serde::Serialize;
 
 /// Fraction of the transport phase left out, at its start, of the steady-height mean.
@@ -75,6 +91,16 @@ const MAX_GRID_POINTS: usize = 100_000;
 /// span (a clock jump, a corrupt stamp) and left out, s. The world logs every control step
 /// (20 ms); a tracker silent this long has lost the mission.
 pub const MAX_FRAME_GAP_S: f64 = 10.0;
+/// Heights of a payload's underside above the ground beneath it that a mission can log, m:
+/// below, more than a settling payload sinks into regolith or a tilted one reaches under its
+/// footprint's centre; above, several times what any arm lifts (the paper's 0.75 m).
+pub const PAYLOAD_HEIGHT_RANGE_M: (f64, f64) = (-0.5, 5.0);
+/// Farthest a payload or base can be from the world's origin along any axis, m: the paper's
+/// missions span metres; a coordinate beyond this is a corrupt log, not a long drive.
+pub const MAX_WORLD_EXTENT_M: f64 = 10_000.0;
+/// Deviation of a logged orientation's norm from 1 that is still a rotation (the world writes
+/// unit quaternions; float rounding is ~1e-7).
+const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
 #[derive(clap::Subcommand)]
 pub enum LogCommand {
@@ -107,7 +133,11 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
     let mut profiles: BTreeMap<String, Vec<Profile>> = BTreeMap::new();
     for trial in &trials {
         let log = trial.log.display().to_string();
-        let (samples, mut unread) = match read_trial(&trial.log) {
+        let WorldTrial {
+            samples,
+            mut unread,
+            team,
+        } = match read_trial(&trial.log) {
             Ok(read) => read,
             Err(e) => {
                 skipped.push(SkippedTrial {
@@ -120,7 +150,7 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
             }
         };
         let folder = trial.log.parent().unwrap_or(Path::new("."));
-        let UnitLogs { clamp, stop } = read_unit_logs(folder, &mut unread);
+        let UnitLogs { clamp, stop } = read_unit_logs(folder, team, &mut unread);
         let m = match trial_metrics(&samples, stop.as_ref()) {
             Ok(m) => m,
             Err(e) => {
@@ -279,9 +309,18 @@ fn paper_rank(payload: &str) -> u8 {
     }
 }
 
-/// The samples of the world log at `path` and what of it could not be read: its truncation,
-/// the frames left out. An error when the log cannot be read or yields no frame.
-fn read_trial(path: &Path) -> Result<(Vec<Sample>, Vec<String>)> {
+/// A world log as the metrics read it.
+struct WorldTrial {
+    samples: Vec<Sample>,
+    /// What of it could not be read: its truncation, the frames left out.
+    unread: Vec<String>,
+    /// Units in the team, from its frames.
+    team: usize,
+}
+
+/// The samples of the world log at `path`. An error when the log cannot be read, yields no
+/// frame or holds one no mission can have logged.
+fn read_trial(path: &Path) -> Result<WorldTrial> {
     let contents = read_world_log_contents(path)?;
     let mut unread = Vec::new();
     let truncated = match contents.end {
@@ -304,10 +343,16 @@ fn read_trial(path: &Path) -> Result<(Vec<Sample>, Vec<String>)> {
                 Some(t) => e.context(t),
                 None => e,
             };
-            return Err(e.context(path.display().to_string()));
+            // The trial's record names the log.
+            return Err(e);
         }
     };
-    Ok((samples, unread))
+    let team = contents.records[0].base_position_m.len();
+    Ok(WorldTrial {
+        samples,
+        unread,
+        team,
+    })
 }
 
 /// One frame of a trial as the metrics see it.
@@ -347,19 +392,30 @@ impl LeftOut {
 
 /// The samples of `frames`: time from the first frame, the reported phase (unit 0's, else any
 /// unit's, else the last one known; Idle before any); and what was left out, named: frames
-/// stamped before the previous one read, more than [`MAX_FRAME_GAP_S`] after it, or with a
-/// non-finite height. An error for a log without frames.
+/// stamped before the previous one read or more than [`MAX_FRAME_GAP_S`] after it. An error
+/// for a log without frames, a frame [`check_frame`] refuses, ticks that do not advance, a
+/// span beyond [`MAX_MISSION_S`], or a log in which no unit's phase was ever recorded.
 fn samples(frames: &[WorldFrame]) -> Result<(Vec<Sample>, Vec<String>)> {
     let Some(first) = frames.first() else {
         bail!("empty log: no ground-truth frames");
     };
+    let team = first.base_position_m.len();
     let max_gap_us = (MAX_FRAME_GAP_S * 1e6) as u64;
-    let (mut backwards, mut beyond, mut non_finite) =
-        (LeftOut::default(), LeftOut::default(), LeftOut::default());
+    let (mut backwards, mut beyond) = (LeftOut::default(), LeftOut::default());
     let mut phase = Phase::Idle;
-    let mut last_us = first.stamp_us;
+    let mut any_phase = false;
+    let mut last: Option<&WorldFrame> = None;
     let mut out = Vec::with_capacity(frames.len());
-    for f in frames {
+    for (k, f) in frames.iter().enumerate() {
+        let at = || {
+            format!(
+                "frame {} (tick {}, stamped {} µs)",
+                k + 1,
+                f.tick,
+                f.stamp_us
+            )
+        };
+        let last_us = last.map_or(first.stamp_us, |l| l.stamp_us);
         if f.stamp_us < last_us {
             backwards.add(f);
             continue;
@@ -368,11 +424,24 @@ fn samples(frames: &[WorldFrame]) -> Result<(Vec<Sample>, Vec<String>)> {
             beyond.add(f);
             continue;
         }
-        if !f.payload_height_m.is_finite() {
-            non_finite.add(f);
-            continue;
+        check_frame(f, team).map_err(|why| anyhow::anyhow!("{}: {why}", at()))?;
+        if let Some(l) = last.filter(|l| f.tick <= l.tick) {
+            bail!(
+                "{}: its tick does not advance past the frame before's ({}): the world logs \
+                 each control step once",
+                at(),
+                l.tick
+            );
         }
-        last_us = f.stamp_us;
+        let t_s = (f.stamp_us - first.stamp_us) as f64 * 1e-6;
+        if t_s > MAX_MISSION_S + MAX_FRAME_GAP_S {
+            bail!(
+                "{}: {t_s:.1} s after the first frame, beyond the longest mission a world \
+                 runs ({MAX_MISSION_S} s)",
+                at()
+            );
+        }
+        last = Some(f);
         let reported = f
             .unit_phase
             .first()
@@ -381,13 +450,21 @@ fn samples(frames: &[WorldFrame]) -> Result<(Vec<Sample>, Vec<String>)> {
             .or_else(|| f.unit_phase.iter().find_map(|p| *p));
         if let Some(p) = reported {
             phase = p;
+            any_phase = true;
         }
         out.push(Sample {
-            t_s: (f.stamp_us - first.stamp_us) as f64 * 1e-6,
+            t_s,
             height_m: f.payload_height_m,
             phase,
             released: !f.grasp_closed.iter().any(|closed| *closed),
         });
+    }
+    if !any_phase {
+        bail!(
+            "none of its {} frames carries a unit's phase (every unit_phase is empty or null): \
+             the world did not record the phases the units reported, so they cannot be timed",
+            out.len()
+        );
     }
     let beyond_why = format!(
         "stamped more than {MAX_FRAME_GAP_S} s after the frame before (beyond the mission's span)"
@@ -395,12 +472,96 @@ fn samples(frames: &[WorldFrame]) -> Result<(Vec<Sample>, Vec<String>)> {
     let left_out = [
         backwards.note("stamped before the frame before"),
         beyond.note(&beyond_why),
-        non_finite.note("with a non-finite payload height"),
     ]
     .into_iter()
     .flatten()
     .collect();
     Ok((out, left_out))
+}
+
+/// Why `f` cannot be a frame of a mission of `team` units (the log's first frame's), naming
+/// the field; `Ok` when every value is one a world can log.
+fn check_frame(f: &WorldFrame, team: usize) -> Result<(), String> {
+    if !(1..=MAX_KEY_FILE_UNITS).contains(&team) {
+        return Err(format!(
+            "the log's team has {team} units (a team has 1 to {MAX_KEY_FILE_UNITS})"
+        ));
+    }
+    let per_unit = [
+        ("base_position_m", f.base_position_m.len(), false),
+        (
+            "base_orientation_xyzw",
+            f.base_orientation_xyzw.len(),
+            false,
+        ),
+        ("unit_phase", f.unit_phase.len(), false),
+        ("grasp_closed", f.grasp_closed.len(), false),
+        // Absent from logs written before joints were recorded.
+        ("wheel_position_rad", f.wheel_position_rad.len(), true),
+        ("arm_position_rad", f.arm_position_rad.len(), true),
+    ];
+    for (field, len, may_be_absent) in per_unit {
+        if len != team && !(may_be_absent && len == 0) {
+            return Err(format!(
+                "{field} has {len} entries; the log's team has {team} units"
+            ));
+        }
+    }
+    let (low, high) = PAYLOAD_HEIGHT_RANGE_M;
+    let h = f.payload_height_m;
+    if !(low..=high).contains(&h) {
+        return Err(format!(
+            "payload_height_m {h:?} is not a height a payload can be at ({low} to {high} m)"
+        ));
+    }
+    let tilt = f.payload_tilt_deg;
+    if !(0.0..=180.0).contains(&tilt) {
+        return Err(format!(
+            "payload_tilt_deg {tilt:?} is not a tilt from upright (0 to 180°)"
+        ));
+    }
+    let positions = std::iter::once(("payload_position_m".to_owned(), f.payload_position_m)).chain(
+        (f.base_position_m.iter().enumerate()).map(|(i, p)| (format!("base_position_m[{i}]"), *p)),
+    );
+    for (field, p) in positions {
+        if !p.iter().all(|c| c.abs() <= MAX_WORLD_EXTENT_M) {
+            return Err(format!(
+                "{field} {p:?} is not a position in the world (each coordinate within \
+                 ±{MAX_WORLD_EXTENT_M} m)"
+            ));
+        }
+    }
+    let orientations = std::iter::once((
+        "payload_orientation_xyzw".to_owned(),
+        f.payload_orientation_xyzw,
+    ))
+    .chain(
+        (f.base_orientation_xyzw.iter().enumerate())
+            .map(|(i, q)| (format!("base_orientation_xyzw[{i}]"), *q)),
+    );
+    for (field, q) in orientations {
+        let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if !((norm - 1.0).abs() <= QUATERNION_NORM_TOLERANCE) {
+            return Err(format!(
+                "{field} {q:?} is not a rotation (a unit quaternion; its norm is {norm:?})"
+            ));
+        }
+    }
+    let joints = (f
+        .wheel_position_rad
+        .iter()
+        .map(|j| ("wheel_position_rad", &j[..])))
+    .chain(
+        f.arm_position_rad
+            .iter()
+            .map(|j| ("arm_position_rad", &j[..])),
+    );
+    for (field, j) in joints {
+        if !j.iter().all(|q| q.is_finite()) {
+            return Err(format!("{field} {j:?} is not finite"));
+        }
+    }
+    Ok(())
 }
 
 /// When each phase of the mission began, on the log's clock (s).
@@ -622,27 +783,44 @@ struct UnitLogs {
     stop: Option<TrialStop>,
 }
 
-/// Reads the unit logs of a trial folder (`unit-<i>.mcap`, from unit 0 until one is missing),
-/// one at a time; what of them could not be read is added to `unread`, and an unreadable log
-/// is left out.
-fn read_unit_logs(folder: &Path, unread: &mut Vec<String>) -> UnitLogs {
+/// Reads the unit logs of a trial folder of a team of `team` units (`unit-<i>.mcap`, i <
+/// `team`), one at a time; what of them could not be read is added to `unread`, and a log that
+/// is missing, unreadable or holds an impossible record is left out. A folder without any unit
+/// log (ground truth alone) has no clamp figures and no notes.
+fn read_unit_logs(folder: &Path, team: usize, unread: &mut Vec<String>) -> UnitLogs {
+    const LEFT_OUT: &str = "left out of the clamp figures and the stop's reason";
     let mut tally = moonhaul_coord::ClampTally::default();
     let mut any = false;
     let mut stops = Vec::new();
-    for i in 0.. {
-        let path = folder.join(format!("unit-{i}.mcap"));
+    let paths: Vec<PathBuf> = (0..team)
+        .map(|i| folder.join(format!("unit-{i}.mcap")))
+        .collect();
+    let strangers = strangers(folder, team);
+    if strangers.is_empty() && !paths.iter().any(|p| p.exists()) {
+        return UnitLogs {
+            clamp: None,
+            stop: None,
+        };
+    }
+    for (i, path) in paths.iter().enumerate() {
         if !path.exists() {
-            break;
+            unread.push(format!(
+                "{} is missing: unit {i} is {LEFT_OUT}",
+                path.display()
+            ));
+            continue;
         }
-        let contents = match read_unit_log_contents(&path) {
+        let contents = match read_unit_log_contents(path) {
             Ok(contents) => contents,
             Err(e) => {
-                unread.push(format!(
-                    "{e}: left out of the clamp figures and the stop's reason"
-                ));
+                unread.push(format!("{e}: {LEFT_OUT}"));
                 continue;
             }
         };
+        if let Err(why) = check_ticks(i, &contents.records) {
+            unread.push(format!("{}: {why}: {LEFT_OUT}", path.display()));
+            continue;
+        }
         if let LogEnd::Truncated { file_bytes } = contents.end {
             unread.push(format!(
                 "{} ends without its footer ({file_bytes} bytes): read {} ticks",
@@ -660,6 +838,7 @@ fn read_unit_logs(folder: &Path, unread: &mut Vec<String>) -> UnitLogs {
         }
         stops.extend(UnitStop::first(i, &contents.records));
     }
+    unread.extend(strangers);
     UnitLogs {
         clamp: any.then(|| ClampStats {
             policy_ticks: tally.ticks,
@@ -669,6 +848,74 @@ fn read_unit_logs(folder: &Path, unread: &mut Vec<String>) -> UnitLogs {
         }),
         stop: TrialStop::of(stops),
     }
+}
+
+/// The `unit-<i>.mcap` files of `folder` whose unit is not one of the team's, named.
+fn strangers(folder: &Path, team: usize) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return Vec::new();
+    };
+    let mut out: Vec<(usize, String)> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            let i: usize = name
+                .strip_prefix("unit-")?
+                .strip_suffix(".mcap")?
+                .parse()
+                .ok()?;
+            (i >= team).then(|| {
+                let why = format!(
+                    "{} is not read: the world log's team has {team} units (0 to {})",
+                    e.path().display(),
+                    team - 1
+                );
+                (i, why)
+            })
+        })
+        .collect();
+    out.sort();
+    out.into_iter().map(|(_, why)| why).collect()
+}
+
+/// Why `records` cannot be unit `unit`'s log, naming the record and field: a record of
+/// another unit, a t_max outside [0, 1], a tracking d that is negative or not finite, ticks
+/// that do not advance or a clock that runs backwards.
+fn check_ticks(unit: usize, records: &[TickRecord]) -> Result<(), String> {
+    let mut last: Option<&TickRecord> = None;
+    for (k, r) in records.iter().enumerate() {
+        let at = format!(
+            "record {} (tick {}, stamped {} µs)",
+            k + 1,
+            r.tick,
+            r.stamp_us
+        );
+        if r.unit != unit {
+            return Err(format!("{at} is unit {}'s, not unit {unit}'s", r.unit));
+        }
+        if !(0.0..=1.0).contains(&r.t_max) {
+            return Err(format!("{at}: t_max {:?} is outside [0, 1]", r.t_max));
+        }
+        if let Some(d) = r.tracking_d.filter(|d| !(d.is_finite() && *d >= 0.0)) {
+            return Err(format!("{at}: tracking_d {d:?} is not a distance"));
+        }
+        if let Some(l) = last {
+            if r.tick <= l.tick {
+                return Err(format!(
+                    "{at}: its tick does not advance past the record before's ({})",
+                    l.tick
+                ));
+            }
+            if r.stamp_us < l.stamp_us {
+                return Err(format!(
+                    "{at}: stamped before the record before ({} µs)",
+                    l.stamp_us
+                ));
+            }
+        }
+        last = Some(r);
+    }
+    Ok(())
 }
 
 /// One unit's first safety stop while a phase ran, from its log.
@@ -1572,17 +1819,128 @@ mod tests {
         frames[2].stamp_us = 0;
         frames[4].stamp_us = u64::MAX / 2;
         frames[5].stamp_us = u64::MAX;
-        frames[7].payload_height_m = f64::NAN;
         let (s, left_out) = samples(&frames).unwrap();
-        assert_eq!(s.len(), 6);
+        assert_eq!(s.len(), 7);
         assert!(close(s.last().unwrap().t_s, 0.18, 1e-12), "{s:?}");
-        assert_eq!(left_out.len(), 3, "{left_out:?}");
+        assert_eq!(left_out.len(), 2, "{left_out:?}");
         assert!(left_out[0].contains("1 frame stamped before") && left_out[0].contains("tick 2"));
         assert!(
             left_out[1].contains("2 frames stamped more than") && left_out[1].contains("tick 4"),
             "{left_out:?}"
         );
-        assert!(left_out[2].contains("non-finite") && left_out[2].contains("tick 7"));
+    }
+
+    /// Every class of value no world can log, in the middle of a good log: an error naming the
+    /// frame and the field, never a summary (a height of 1e300 once averaged to `inf`).
+    #[test]
+    fn an_impossible_frame_value_is_an_error_naming_the_frame_and_field() {
+        type Bend = fn(&mut WorldFrame);
+        let cases: [(&str, Bend); 15] = [
+            ("payload_height_m", |f| f.payload_height_m = 1e300),
+            ("payload_height_m", |f| f.payload_height_m = -3.0),
+            ("payload_height_m", |f| f.payload_height_m = f64::NAN),
+            ("payload_tilt_deg", |f| f.payload_tilt_deg = 400.0),
+            ("payload_tilt_deg", |f| f.payload_tilt_deg = f64::INFINITY),
+            ("payload_position_m", |f| f.payload_position_m[1] = 1e9),
+            ("payload_position_m", |f| f.payload_position_m[2] = f64::NAN),
+            ("base_position_m[1]", |f| f.base_position_m[1][0] = -1e7),
+            ("payload_orientation_xyzw", |f| {
+                f.payload_orientation_xyzw = [0.0, 0.0, 0.0, 2.0]
+            }),
+            ("base_orientation_xyzw[0]", |f| {
+                f.base_orientation_xyzw[0] = [0.0; 4]
+            }),
+            ("arm_position_rad", |f| f.arm_position_rad[1][3] = f64::NAN),
+            ("wheel_position_rad", |f| {
+                f.wheel_position_rad[0][1] = f64::INFINITY
+            }),
+            ("unit_phase has 3 entries", |f| f.unit_phase.push(None)),
+            ("grasp_closed has 1 entries", |f| {
+                f.grasp_closed.pop();
+            }),
+            ("tick does not advance", |f| f.tick = 3),
+        ];
+        for (named, bend) in cases {
+            let mut frames: Vec<WorldFrame> = (0..10)
+                .map(|k| frame(k, vec![Some(Phase::Lift); 2]))
+                .collect();
+            // Frames after a huge stamp are stamped before it: the last one is bent.
+            bend(&mut frames[9]);
+            let e = samples(&frames).map(|_| ()).unwrap_err().to_string();
+            assert!(
+                e.contains(named) && e.contains("frame 10 (tick"),
+                "{named}: {e}"
+            );
+        }
+        // Stamps 9 s apart (each within the gap a frame may follow the one before by) add up
+        // to a span no world runs: the frame past it is named.
+        let long: Vec<WorldFrame> = (0..500)
+            .map(|k| {
+                let mut f = frame(k, vec![Some(Phase::Lift); 2]);
+                f.stamp_us = k * 9_000_000;
+                f
+            })
+            .collect();
+        let e = samples(&long).map(|_| ()).unwrap_err().to_string();
+        assert!(
+            e.contains("frame 403 (tick 402") && e.contains("longest mission"),
+            "{e}"
+        );
+        assert!(samples(&long[..400]).is_ok());
+    }
+
+    #[test]
+    fn a_world_log_without_unit_phases_says_so() {
+        let frames: Vec<WorldFrame> = (0..10).map(|k| frame(k, vec![None, None])).collect();
+        let e = samples(&frames).map(|_| ()).unwrap_err().to_string();
+        assert!(
+            e.contains("none of its 10 frames carries a unit's phase")
+                && !e.contains("never started"),
+            "{e}"
+        );
+        let frames: Vec<WorldFrame> = (0..10).map(|k| frame(k, Vec::new())).collect();
+        let e = samples(&frames).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("unit_phase has 0 entries"), "{e}");
+    }
+
+    #[test]
+    fn an_impossible_tick_record_names_its_record_and_field() {
+        let good = |unit| {
+            unit_log(
+                unit,
+                &[
+                    (0, Phase::Lift, None, None),
+                    (20, Phase::Lift, None, None),
+                    (40, Phase::Transport, None, None),
+                ],
+            )
+            .into_iter()
+            .enumerate()
+            .map(|(k, mut r)| {
+                r.tick = k as u64 + 1;
+                r.t_max = 1.0;
+                r.tracking_d = Some(0.2);
+                r
+            })
+            .collect::<Vec<_>>()
+        };
+        assert_eq!(check_ticks(1, &good(1)), Ok(()));
+        type Bend = fn(&mut [TickRecord]);
+        let cases: [(&str, Bend); 7] = [
+            ("is unit 0's, not unit 1's", |r| r[1].unit = 0),
+            ("t_max 7.0 is outside", |r| r[2].t_max = 7.0),
+            ("t_max NaN is outside", |r| r[2].t_max = f64::NAN),
+            ("t_max -0.5 is outside", |r| r[2].t_max = -0.5),
+            ("tracking_d -1.0 is not", |r| r[2].tracking_d = Some(-1.0)),
+            ("tick does not advance", |r| r[2].tick = 2),
+            ("stamped before the record before", |r| r[2].stamp_us = 10),
+        ];
+        for (named, bend) in cases {
+            let mut records = good(1);
+            bend(&mut records);
+            let e = check_ticks(1, &records).unwrap_err();
+            assert!(e.contains(named) && e.contains("record "), "{named}: {e}");
+        }
     }
 
     #[test]

@@ -9,8 +9,8 @@ use std::path::Path;
 
 use moonhaul_core::config::repo_file;
 use moonhaul_core::state::Phase;
-use moonhaul_deploy::mission_log::{read_world_log_contents, LogInputs, WorldLog};
-use moonhaul_deploy::record::WorldFrame;
+use moonhaul_deploy::mission_log::{read_world_log_contents, LogInputs, UnitLog, WorldLog};
+use moonhaul_deploy::record::{TickRecord, WorldFrame};
 
 /// The unit model and configs the test logs attach.
 fn inputs() -> LogInputs {
@@ -237,6 +237,151 @@ fn summary_errors_name_the_file_at_fault() {
     common::fails_naming(
         &["log", "summary", empty.path().to_str().unwrap()],
         "holds no trials",
+    );
+}
+
+/// Unit `unit`'s log at `path`: one tick record per world frame of `trial_frames` (every 10th),
+/// at full steps, written with the daemon's writer; `bend` changes the records first.
+fn write_unit_log(path: &Path, unit: usize, bend: impl FnOnce(&mut [TickRecord])) {
+    let mut records: Vec<TickRecord> = trial_frames(0.24, 8.0, 0.008)
+        .iter()
+        .step_by(10)
+        .enumerate()
+        .map(|(k, f)| {
+            let mut r = TickRecord::for_team(2);
+            r.unit = unit;
+            r.tick = k as u64 + 1;
+            r.stamp_us = f.stamp_us;
+            r.phase = f.unit_phase[1].unwrap();
+            r.t_max = 1.0;
+            r
+        })
+        .collect();
+    bend(&mut records);
+    let mut log = UnitLog::create(path, unit, &inputs()).unwrap();
+    for r in &records {
+        log.write(r).unwrap();
+    }
+    log.finish().unwrap();
+}
+
+/// Every class of unit log the summary cannot use — missing beside its team's other logs,
+/// damaged, of the wrong kind, another unit's, holding an impossible value, beyond the team —
+/// is named with what is wrong, and the trial is still summarized from its ground truth.
+#[test]
+fn unit_logs_that_cannot_be_used_are_named_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let trial = dir.path().join("box/trial-0");
+    write_trial(&trial, 0.240, 8.0, 0.008);
+    let unread = |dir: &Path| -> Vec<String> {
+        let summary = summary_json(dir);
+        let trial = &summary["trials"][0];
+        assert_eq!(trial["completed"], true, "{trial}");
+        trial["unread"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|n| n.as_str().unwrap().to_owned())
+            .collect()
+    };
+    // Ground truth alone: no unit log expected.
+    assert_eq!(unread(dir.path()), Vec::<String>::new());
+    let [u0, u1] = [trial.join("unit-0.mcap"), trial.join("unit-1.mcap")];
+    write_unit_log(&u0, 0, |_| {});
+    write_unit_log(&u1, 1, |_| {});
+    assert_eq!(unread(dir.path()), Vec::<String>::new());
+
+    let cases: Vec<(&str, Box<dyn Fn()>)> = vec![
+        (
+            "unit-0.mcap is missing",
+            Box::new(|| std::fs::remove_file(&u0).unwrap()),
+        ),
+        (
+            "is not a valid MCAP mission log",
+            Box::new(|| std::fs::write(&u0, b"\x89MCAP0\r\n garbage that is not a log").unwrap()),
+        ),
+        (
+            "is not a unit log",
+            Box::new(|| {
+                std::fs::copy(trial.join("world.mcap"), &u0)
+                    .map(|_| ())
+                    .unwrap()
+            }),
+        ),
+        (
+            "is unit 1's, not unit 0's",
+            Box::new(|| std::fs::copy(&u1, &u0).map(|_| ()).unwrap()),
+        ),
+        (
+            "t_max 1e300 is outside [0, 1]",
+            Box::new(|| write_unit_log(&u0, 0, |r| r[40].t_max = 1e300)),
+        ),
+        (
+            "stamped before the record before",
+            Box::new(|| write_unit_log(&u0, 0, |r| r[40].stamp_us = 0)),
+        ),
+    ];
+    for (named, damage) in cases {
+        damage();
+        let notes = unread(dir.path());
+        assert_eq!(notes.len(), 1, "{named}: {notes:?}");
+        assert!(
+            notes[0].contains(named)
+                && notes[0].contains("unit-0.mcap")
+                && notes[0].contains("left out of the clamp figures"),
+            "{named}: {notes:?}"
+        );
+        write_unit_log(&u0, 0, |_| {});
+    }
+    // A log of a unit the team does not have.
+    write_unit_log(&trial.join("unit-2.mcap"), 2, |_| {});
+    let notes = unread(dir.path());
+    assert!(
+        notes.len() == 1
+            && notes[0].contains("unit-2.mcap is not read")
+            && notes[0].contains("2 units"),
+        "{notes:?}"
+    );
+    // The text output says it too, below the table.
+    let text = common::stdout(&common::moonhaul(&[
+        "log",
+        "summary",
+        dir.path().to_str().unwrap(),
+    ]));
+    assert!(text.contains("unit-2.mcap is not read"), "{text}");
+}
+
+/// A world log holding a value no mission can have (here a height of 1e300 m, which once
+/// averaged to `inf`) is an error naming the file, the frame and the field; a world log whose
+/// frames carry no unit's phase says that, not that the mission never started.
+#[test]
+fn impossible_world_logs_are_errors_naming_the_file_frame_and_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("box/trial-0/world.mcap");
+    let arg = dir.path().to_str().unwrap();
+    let mut frames = trial_frames(0.240, 8.0, 0.008);
+    frames[900].payload_height_m = 1e300;
+    write_log(&log, &frames);
+    let e = common::fails_naming(&["log", "summary", arg], log.to_str().unwrap());
+    assert!(
+        e.contains("frame 901 (tick 900")
+            && e.contains("payload_height_m 1e300")
+            && !e.contains("inf"),
+        "{e}"
+    );
+
+    let silent: Vec<WorldFrame> = trial_frames(0.240, 8.0, 0.008)
+        .into_iter()
+        .map(|mut f| {
+            f.unit_phase = vec![None, None];
+            f
+        })
+        .collect();
+    write_log(&log, &silent);
+    let e = common::fails_naming(&["log", "summary", arg], log.to_str().unwrap());
+    assert!(
+        e.contains("carries a unit's phase") && !e.contains("never started"),
+        "{e}"
     );
 }
 
