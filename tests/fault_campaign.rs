@@ -2,8 +2,13 @@
 //! mock hardware (the built `moonhaul-unit`), flooded on every team key by sessions without the
 //! team's credentials (none at all, and another key file's) with small frames at 10,000 frames/s
 //! and with 1 MB and 64 MB frames, and on the operator key by a session *with* the operator's
-//! credential (so the daemons' queues, size cap and validator see the flood). The team must keep
-//! ticking, no unit may stop or hold for it, and each daemon's log must count what it refused.
+//! credential (so the daemons' queues, size cap and validator see the flood), and on unit 1's
+//! state key by a session holding unit 1's transport credentials that sends frames unit 1 never
+//! signed (another team's unit-1 key, a stale key epoch, a wrong protocol version, the
+//! operator's key speaking as unit 1, garbage): refused where they arrive, they must never
+//! crowd unit 1's genuine states out of unit 0's queue. The team must keep ticking, no unit may
+//! stop or hold for it, every peer stays fresh, and each daemon's log must count what it
+//! refused.
 //!
 //! The CI test floods for a few seconds; `MOONHAUL_CAMPAIGN_S=30 cargo test -p moonhaul --test
 //! fault_campaign -- --ignored` runs the 30 s campaign (`the_full_campaign`), printing
@@ -85,10 +90,54 @@ fn small_frames() -> Vec<ZBytes> {
     frames
 }
 
-/// Floods `keys` from `session` at `hz` frames per second for `seconds`, with a 1 MB and a
-/// 64 MB frame on every key at the start and halfway; returns the frames it put.
-async fn flood(session: &zenoh::Session, keys: &[String], hz: f64, seconds: f64) -> u64 {
-    let small = small_frames();
+/// Frames a holder of unit 1's transport credentials (but not its signing key) sends on unit 1's
+/// key: well-formed unit-1 frames sealed with another team's unit-1 key, with a stale key
+/// epoch, with the next protocol version; a genuine operator frame (the wrong sender for the
+/// key); and garbage.
+fn insider_frames(keys: &KeyFile) -> Vec<ZBytes> {
+    use moonhaul_coord::message::{Body, Envelope, OperatorCommand, Sender, PROTOCOL_VERSION};
+    let envelope = |version, sender, seq: u64| Envelope {
+        version,
+        team: "moonhaul".into(),
+        sender,
+        seq,
+        stamp_us: wall_us() + seq,
+        body: Body::Operator(OperatorCommand::Start { mission: 1 }),
+    };
+    let rogue = KeyFile::generate("moonhaul", 2, 1).unwrap();
+    let stale = KeyFile::generate("moonhaul", 2, 0).unwrap();
+    let unit1 = Sender::Unit(1);
+    let mut frames = Vec::new();
+    for seq in 0..16u64 {
+        // (key file, sender, version): the operator's genuine key, on unit 1's key.
+        let sealed = [
+            (&rogue, unit1, PROTOCOL_VERSION),
+            (&stale, unit1, PROTOCOL_VERSION),
+            (&rogue, unit1, PROTOCOL_VERSION + 1),
+            (keys, Sender::Operator, PROTOCOL_VERSION),
+        ];
+        for (key_file, sender, version) in sealed {
+            let frame = key_file
+                .sealer(sender)
+                .unwrap()
+                .seal(&envelope(version, sender, seq))
+                .unwrap();
+            frames.push(ZBytes::from(frame));
+        }
+    }
+    frames.push(ZBytes::from(vec![0xa5u8; 300]));
+    frames
+}
+
+/// Floods `keys` from `session` with `small` at `hz` frames per second for `seconds`, with a
+/// 1 MB and a 64 MB frame on every key at the start and halfway; returns the frames it put.
+async fn flood(
+    session: &zenoh::Session,
+    keys: &[String],
+    small: &[ZBytes],
+    hz: f64,
+    seconds: f64,
+) -> u64 {
     // The oversize frames: one just over the cap (one zenoh batch), 1 MB and 64 MB.
     let big =
         [network::MAX_FRAME_BYTES + 1, 1 << 20, 64 << 20].map(|n| ZBytes::from(vec![0x5au8; n]));
@@ -241,23 +290,36 @@ fn campaign(seconds: f64) {
         .unwrap();
     let stranger = KeyFile::generate("moonhaul", 2, 1).unwrap();
     let window_start = wall_us();
-    let (sent, outsiders_connected, insider_connected) = runtime.block_on(async {
+    let (sent, outsiders_connected, insiders_connected) = runtime.block_on(async {
         let nobody = anonymous(&endpoints).await;
         let forger = as_role(&stranger, Role::Operator, &endpoints).await;
         let operator = as_role(&keys, Role::Operator, &endpoints).await;
+        // Beside the running unit 1, under an id of its own: zenoh admits an id once.
+        let unit1 = network::open(
+            &NetworkSettings {
+                connect: endpoints.to_vec(),
+                listen: Vec::new(),
+            },
+            &Access::new(&keys, Role::Unit(1)).unwrap().with_random_id(),
+        )
+        .await
+        .unwrap();
         let all = team_keys();
-        let operator_key = [Keys::new("moonhaul").operator()];
-        let (a, b, c) = tokio::join!(
-            flood(&nobody, &all, FLOOD_HZ / 2.0, seconds),
-            flood(&forger, &all, FLOOD_HZ / 2.0, seconds),
-            flood(&operator, &operator_key, FLOOD_HZ, seconds),
+        let team = Keys::new("moonhaul");
+        let (small, forged) = (small_frames(), insider_frames(&keys));
+        let (operator_key, unit1_key) = ([team.operator()], [team.unit_state(1)]);
+        let (a, b, c, d) = tokio::join!(
+            flood(&nobody, &all, &small, FLOOD_HZ / 2.0, seconds),
+            flood(&forger, &all, &small, FLOOD_HZ / 2.0, seconds),
+            flood(&operator, &operator_key, &small, FLOOD_HZ, seconds),
+            flood(&unit1, &unit1_key, &forged, FLOOD_HZ, seconds),
         );
         let outsiders = has_peers(&nobody).await || has_peers(&forger).await;
-        let insider = has_peers(&operator).await;
-        for s in [nobody, forger, operator] {
+        let insiders = [has_peers(&operator).await, has_peers(&unit1).await];
+        for s in [nobody, forger, operator, unit1] {
             let _ = s.close().await;
         }
-        ([a, b, c], outsiders, insider)
+        ([a, b, c, d], outsiders, insiders)
     });
     let window_end = wall_us();
     // A moment after the flood, the team must still be in its mission, unstopped.
@@ -271,9 +333,9 @@ fn campaign(seconds: f64) {
         !outsiders_connected,
         "a session without the team's credentials got in"
     );
-    assert!(
-        insider_connected,
-        "the operator's flood session never connected"
+    assert_eq!(
+        insiders_connected, [true; 2],
+        "the operator's and unit 1's flood sessions must connect"
     );
     let achieved_hz = sent.map(|n| n as f64 / seconds);
     println!("flood: {seconds} s, frames put per session {sent:?} ({achieved_hz:.0?} frames/s)");
@@ -366,6 +428,7 @@ fn campaign(seconds: f64) {
         // refused as oversize (the frame just over the cap; the larger ones die in the
         // transport's reassembly).
         assert!(t["rejected"] > 0, "unit {i}: {t:?}");
+
         assert!(t["oversize"] >= 1, "unit {i}: {t:?}");
         assert!(log.contains("frames refused"), "unit {i}");
         assert!(!log.contains("panicked"), "unit {i}");

@@ -240,6 +240,15 @@ impl Access {
         self.own.role
     }
 
+    /// The same access under a zenoh id of zenoh's choosing instead of the role's fixed one:
+    /// a second session of a role beside its running process (whose id zenoh will not admit
+    /// twice), e.g. a credentialed adversary in the fault campaign. Access control knows it
+    /// by its user alone.
+    pub fn with_random_id(mut self) -> Access {
+        self.own.zid = None;
+        self
+    }
+
     /// Zenoh's access-control configuration: default deny; the team's keys open to every
     /// role's subscriptions and to this process's own publications; each role's publications
     /// accepted on [`Keys::published_by`] only, from a session authenticated as that role's
