@@ -60,6 +60,7 @@ use moonhaul_core::action::ActionMap;
 use moonhaul_core::observation::{
     unit_observation, CommandState, GraspReference, ObservationView, PhaseGoal, ACTOR_OBS_DIM,
 };
+use moonhaul_core::scripted::{MissionPlan, PhaseScript, ScriptInput};
 use moonhaul_core::seed::stream_seed;
 use moonhaul_core::state::{Phase, PlanarPose, UnitCommand, UnitState, UNIT_ACTION_DIM};
 use moonhaul_core::touchdown::{team_arms, Touchdown};
@@ -161,6 +162,13 @@ impl PhaseTask {
         task.mission = true;
         task.max_steps = (total_s / task.control_period_s).round() as u64;
         Ok(task)
+    }
+
+    /// A scripted expert for one unit of an episode of this task: it takes the phase over with
+    /// the payload where the task starts it (`start_lift_m`: a transport or place start, or a
+    /// hand-over, holds the mission's transport height).
+    pub fn expert(&self, plan: MissionPlan) -> PhaseScript {
+        PhaseScript::resume(plan, self.phase, self.config.start_lift_m(self.phase))
     }
 
     /// The increment map: the exported policy's output scale is its steps.
@@ -545,6 +553,42 @@ impl Episode {
             last_held,
             ..CommandState::after_hold(self.previous[i], self.previous[1 - i])
         }
+    }
+
+    /// The scripted expert's action for unit `i` now: the raw action a whose increment
+    /// Δ = step ⊙ a moves U_{k−1} toward what `script` (this unit's, kept across the episode's
+    /// ticks) commands from what the unit knows onboard (its sensed state and odometry, the
+    /// peer's published state, the rest grasp, the phase clock, start pose and goal), each
+    /// component clipped to ±1 (the pipeline bounds the increment to ±step). The labels a
+    /// policy is cloned from: the expert flies the same pipeline and clamp the policy does.
+    /// Start the script with [`PhaseTask::expert`].
+    pub fn expert_action(
+        &self,
+        task: &PhaseTask,
+        scene: &SceneModel,
+        i: usize,
+        script: &mut PhaseScript,
+    ) -> Result<[f64; UNIT_ACTION_DIM], SimError> {
+        let input = ScriptInput {
+            spec: &scene.spec,
+            phase: self.phase,
+            phase_time_s: self.phase_time_s(task),
+            reference: &self.reference[i],
+            own: &self.sensed[i],
+            peer: &self.published[1 - i],
+            phase_start_base: &self.start_base[i],
+            goal: &self.goal(task, i),
+            profile: &task.config.profile(),
+            previous: &self.previous[i],
+            grasp_open: self.released[i],
+        };
+        let desired = script
+            .command(&input)
+            .map_err(|e| SimError::Kinematics(format!("the scripted expert of unit {i}: {e}")))?;
+        let delta = ActionMap::toward(&self.previous[i], &desired);
+        Ok(std::array::from_fn(|k| {
+            (delta[k] / task.map.step[k]).clamp(-1.0, 1.0)
+        }))
     }
 
     /// Unit `i`'s actor observation.
