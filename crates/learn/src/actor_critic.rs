@@ -182,6 +182,34 @@ impl ActorCritic {
         }
     }
 
+    /// Learns the actor normalizer's statistics alone from raw observations `[B, O]`: DAgger
+    /// visits states without valuing them ([`crate::distill`]).
+    pub fn update_obs_normalizer(&mut self, obs: &Tensor) {
+        if let Some(n) = self.obs_normalizer.as_mut() {
+            n.update(obs);
+        }
+    }
+
+    /// Learns the critic normalizer's statistics alone from raw critic observations `[B, C]`:
+    /// the critic's warm-up leaves everything the actor computes with as it was.
+    pub fn update_critic_obs_normalizer(&mut self, critic_obs: &Tensor) {
+        if let Some(n) = self.critic_obs_normalizer.as_mut() {
+            n.update(critic_obs);
+        }
+    }
+
+    /// `[B, A]` Gaussian mean of observations already passed through
+    /// [`ActorCritic::normalize_obs`], with gradient (the behaviour-cloning fit).
+    pub fn mean_normalized(&self, obs: &Tensor) -> Tensor {
+        self.actor.forward(obs)
+    }
+
+    /// `[B]` values of critic observations already passed through
+    /// [`ActorCritic::normalize_critic_obs`], with gradient (the critic's warm-up).
+    pub fn values_normalized(&self, critic_obs: &Tensor) -> Tensor {
+        self.critic_forward(critic_obs)
+    }
+
     /// `[B, A]` Gaussian mean of raw observations `[B, O]`.
     fn actor_mean(&self, obs: &Tensor) -> Tensor {
         self.actor

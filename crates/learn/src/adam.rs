@@ -26,7 +26,17 @@ pub struct Adam {
 impl Adam {
     /// Optimises every variable of `vs`.
     pub fn new(vs: &VarStore, lr: f64) -> Self {
-        let mut params: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
+        Self::over(vs, lr, |_| true)
+    }
+
+    /// Optimises the variables of `vs` whose names `keep` accepts, e.g. the actor's alone
+    /// (`actor.`): the others never move, whatever gradients they hold.
+    pub fn over(vs: &VarStore, lr: f64, keep: impl Fn(&str) -> bool) -> Self {
+        let mut params: Vec<(String, Tensor)> = vs
+            .variables()
+            .into_iter()
+            .filter(|(name, _)| keep(name))
+            .collect();
         params.sort_by(|a, b| a.0.cmp(&b.0));
         let zeros = |p: &[(String, Tensor)]| p.iter().map(|(_, t)| t.zeros_like()).collect();
         Adam {

@@ -25,6 +25,39 @@ pub struct TrainConfig {
     pub reward: Option<RewardConfig>,
     /// The simulated world of the phase tasks; absent for benchmark tasks.
     pub world: Option<WorldConfig>,
+    /// Warm start from the scripted expert before PPO ([`crate::distill`]); absent: PPO from
+    /// scratch. Not in the paper.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warm_start: Option<WarmStartConfig>,
+}
+
+/// The warm start of [`crate::distill`]: DAgger from the scripted expert, then the critic fitted
+/// to the cloned actor's returns before PPO touches either. None of it is in the paper (which
+/// trains from scratch); every value here is a training choice, bounded so a config cannot
+/// exhaust memory or run forever before PPO's first iteration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WarmStartConfig {
+    /// `configs/mission.toml`, relative to this config file: the plan the scripted expert
+    /// ([`moonhaul_core::scripted::PhaseScript`]) flies, the same one `moonhaul sim demo` and
+    /// the deployed scripted controller fly.
+    pub mission: PathBuf,
+    /// DAgger rounds (rollout, aggregate, fit).
+    pub rounds: usize,
+    /// Control steps every world runs per round.
+    pub steps_per_round: usize,
+    /// Passes over the aggregated buffer per round.
+    pub epochs: usize,
+    /// Adam steps per epoch (the buffer is split into this many minibatches).
+    pub minibatches: usize,
+    /// Adam's rate for the actor's fit and the critic's warm-up.
+    pub learning_rate: f64,
+    /// The aggregated buffer keeps the most recent this many labelled rows.
+    pub buffer_rows: usize,
+    /// Share of rows the expert drives in the first round; it falls linearly to 0 in the last.
+    pub beta_start: f64,
+    /// Rollouts of the cloned actor that fit only the critic before PPO (0: none).
+    pub critic_warmup_iterations: usize,
 }
 
 /// Which simulator and task settings a phase task trains on.
@@ -200,6 +233,10 @@ const MAX_NAME_BYTES: usize = 64;
 
 impl Validate for TrainConfig {
     fn resolve(&mut self, config_path: &Path) -> Result<(), ConfigError> {
+        if let Some(warm) = &mut self.warm_start {
+            let resolved = config::resolve(config_path, &warm.mission);
+            warm.mission = std::fs::canonicalize(&resolved).unwrap_or(resolved);
+        }
         if let Some(world) = &mut self.world {
             // Absolute where they exist, so the resolved config saved in a run folder still
             // names them; a missing file is reported when the world is built.
@@ -368,7 +405,56 @@ impl Validate for TrainConfig {
             in_range("entropy_coef", ppo.entropy_coef, 0.0, 10.0)?;
             in_range("value_loss_coef", ppo.value_loss_coef, 0.0, 100.0)?;
             positive("max_grad_norm", ppo.max_grad_norm, 1e6)
-        })
+        })?;
+        match (&self.warm_start, self.run.task) {
+            (None, _) => Ok(()),
+            (Some(_), Task::Pendulum) => Err(FieldError::new(
+                "warm_start",
+                "the pendulum task has no scripted expert to warm-start from; remove [warm_start]",
+            )),
+            (Some(warm), _) => section("warm_start", || warm.validate(self.env.num_envs)),
+        }
+    }
+}
+
+/// Most warm-start rounds and critic warm-up iterations: far beyond what a warm start needs
+/// (tens), short of a run that never reaches PPO.
+const MAX_WARM_ITERATIONS: u64 = 10_000;
+
+impl WarmStartConfig {
+    /// `worlds` is `env.num_envs`: every task gives at least one row per world, so a round
+    /// adds at least `worlds × steps_per_round` rows to the buffer.
+    fn validate(&self, worlds: usize) -> Result<(), FieldError> {
+        count("rounds", self.rounds as u64, 1, MAX_WARM_ITERATIONS)?;
+        // A round's rollout and fit are bounded as PPO's are (`env.steps_per_env`, `ppo.epochs`).
+        count("steps_per_round", self.steps_per_round as u64, 1, 10_000)?;
+        count("epochs", self.epochs as u64, 1, 100)?;
+        // The buffer is held as f32 tensors of observations and labels: the rollout's bound.
+        count("buffer_rows", self.buffer_rows as u64, 1, MAX_BATCH_SAMPLES)?;
+        // Every minibatch of the first round's fit must hold at least one row.
+        let first_round = (worlds as u64)
+            .saturating_mul(self.steps_per_round as u64)
+            .min(self.buffer_rows as u64);
+        count("minibatches", self.minibatches as u64, 1, first_round)?;
+        // As `ppo.learning_rate`; β is a probability.
+        positive("learning_rate", self.learning_rate, 1.0)?;
+        in_range("beta_start", self.beta_start, 0.0, 1.0)?;
+        count(
+            "critic_warmup_iterations",
+            self.critic_warmup_iterations as u64,
+            0,
+            MAX_WARM_ITERATIONS,
+        )
+    }
+
+    /// β of round `round` (0-based): `beta_start` in the first, falling linearly to 0 in the
+    /// last (a single round keeps `beta_start`).
+    pub fn beta(&self, round: usize) -> f64 {
+        if self.rounds <= 1 {
+            return self.beta_start;
+        }
+        let done = round.min(self.rounds - 1) as f64 / (self.rounds - 1) as f64;
+        self.beta_start * (1.0 - done)
     }
 }
 
@@ -400,6 +486,110 @@ mod tests {
             variant, lift,
             "the variant drifted from configs/train/lift.toml"
         );
+    }
+
+    #[test]
+    fn the_warm_variant_is_the_lift_config_with_a_warm_start() {
+        let (lift, mut warm) = (repo_config("lift"), repo_config("lift_warm"));
+        let plan = warm
+            .warm_start
+            .take()
+            .expect("lift_warm has a [warm_start]");
+        // The expert's plan is the shipped mission, resolved against the config's folder.
+        moonhaul_core::scripted::MissionPlan::load(&plan.mission).unwrap();
+        assert_eq!(plan.beta(0), 1.0);
+        assert_eq!(plan.beta(plan.rounds - 1), 0.0);
+        assert!(warm.run.iterations < lift.run.iterations);
+        (warm.run.name, warm.run.iterations) = (lift.run.name.clone(), lift.run.iterations);
+        assert_eq!(warm, lift, "lift_warm drifted from configs/train/lift.toml");
+    }
+
+    #[test]
+    fn beta_falls_linearly_to_zero_over_the_rounds() {
+        let mut warm = repo_config("lift_warm").warm_start.unwrap();
+        (warm.rounds, warm.beta_start) = (5, 0.8);
+        let betas: Vec<f64> = (0..5).map(|k| warm.beta(k)).collect();
+        let expected = [0.8, 0.6, 0.4, 0.2, 0.0];
+        assert!(
+            betas
+                .iter()
+                .zip(expected)
+                .all(|(b, e)| (b - e).abs() < 1e-12),
+            "{betas:?}"
+        );
+        warm.rounds = 1;
+        assert_eq!(warm.beta(0), 0.8, "a single round keeps beta_start");
+    }
+
+    #[test]
+    fn bad_warm_start_values_are_refused_by_name() {
+        let text = repo_config("lift_warm").to_toml();
+        let section = text.find("[warm_start]").expect("serialized");
+        // `key = value` set inside [warm_start] (epochs and minibatches are in [ppo] too).
+        let set = |key: &str, value: &str| {
+            let (before, after) = text.split_at(section);
+            let lines: Vec<String> = after
+                .lines()
+                .map(|l| match l.split_once(" = ") {
+                    Some((k, _)) if k == key => format!("{key} = {value}"),
+                    _ => l.to_owned(),
+                })
+                .collect();
+            let edited = format!("{before}{}\n", lines.join("\n"));
+            assert_ne!(
+                edited.trim_end(),
+                text.trim_end(),
+                "{key} not in [warm_start]"
+            );
+            edited
+        };
+        // 256 worlds x 400 steps: at most 102,400 minibatches of one row in the first round.
+        let cases = [
+            (set("rounds", "0"), "warm_start.rounds"),
+            (set("rounds", "10001"), "warm_start.rounds"),
+            (set("steps_per_round", "0"), "warm_start.steps_per_round"),
+            (set("epochs", "0"), "warm_start.epochs"),
+            (set("minibatches", "0"), "warm_start.minibatches"),
+            (set("minibatches", "102401"), "warm_start.minibatches"),
+            (set("learning_rate", "0.0"), "warm_start.learning_rate"),
+            (set("learning_rate", "nan"), "warm_start.learning_rate"),
+            (set("buffer_rows", "0"), "warm_start.buffer_rows"),
+            (set("buffer_rows", "4194305"), "warm_start.buffer_rows"),
+            (set("beta_start", "1.5"), "warm_start.beta_start"),
+            (set("beta_start", "-0.1"), "warm_start.beta_start"),
+            (
+                set("critic_warmup_iterations", "10001"),
+                "warm_start.critic_warmup_iterations",
+            ),
+            (set("rounds", "-1"), "warm_start.rounds"),
+            (set("beta_start", "1.0\nbeta_end = 0.0"), "beta_end"),
+            (
+                text.replace("critic_warmup_iterations = 20\n", ""),
+                "critic_warmup_iterations",
+            ),
+            // A small buffer bounds the first round's minibatches too.
+            (
+                set("buffer_rows", "100").replace("minibatches = 32", "minibatches = 101"),
+                "warm_start.minibatches",
+            ),
+        ];
+        for (text, field) in cases {
+            let err = TrainConfig::parse(&text, Path::new("train.toml")).unwrap_err();
+            let message = err.to_string();
+            assert!(
+                message.contains(field) && message.contains("train.toml"),
+                "{field}: {message}"
+            );
+        }
+        // What the bounds admit parses.
+        for (key, value) in [("critic_warmup_iterations", "0"), ("beta_start", "0.0")] {
+            TrainConfig::parse(&set(key, value), Path::new("train.toml")).unwrap();
+        }
+        // The pendulum has no expert.
+        let pendulum = repo_config("pendulum").to_toml();
+        let with_warm = format!("{pendulum}\n{}", &text[section..]);
+        let err = TrainConfig::parse(&with_warm, Path::new("train.toml")).unwrap_err();
+        assert_eq!(err.field(), Some("warm_start"), "{err}");
     }
 
     #[test]

@@ -116,6 +116,19 @@ pub trait VecEnv {
     /// auto-resetting finished episodes as described in the [module docs](self).
     fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError>;
 
+    /// Writes every row's expert raw action for the current state into `actions`
+    /// (`[num_envs * action_dim]`, the policy's action space): the labels DAgger
+    /// ([`crate::distill`]) clones. An expert may be stateful (the phase tasks' scripted
+    /// expert is), so ask once per step, before [`VecEnv::step`], from the first step of the
+    /// episodes on; a second call before the next step gives the same labels. Default: an
+    /// error, the task has no expert.
+    fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), LearnError> {
+        let _ = actions;
+        Err(LearnError::NoExpert {
+            reason: format!("{} has no scripted expert", std::any::type_name::<Self>()),
+        })
+    }
+
     /// The physics' share of the step time since the last call, s, for envs that simulate
     /// (`None`: no simulator to separate from the task, as Pendulum's closed form).
     fn take_physics_s(&mut self) -> Option<f64> {

@@ -33,6 +33,11 @@ pub enum LearnError {
         expected: usize,
         found: usize,
     },
+    /// Expert labels were asked of an environment that cannot give them (a task without a
+    /// scripted expert, or a phase task built without a mission plan), or in a way that would
+    /// desynchronise its stateful scripts.
+    #[error("no expert labels: {reason}")]
+    NoExpert { reason: String },
     /// An environment or the learner produced NaN or infinity.
     #[error("{what} is not finite")]
     NonFinite { what: String },

@@ -9,12 +9,15 @@
 //! buffer and GAE), [`ppo`] (the update), [`runner`] (rollout/update loop and evaluation),
 //! [`trainer`] (the run folder: config, metrics, plots, checkpoints, export). [`reward`] holds
 //! the paper's phase rewards r_L, r_T, r_P with Table II's tolerances and weights, and
-//! [`phase_env`] the lift, transport and place tasks built on them.
+//! [`phase_env`] the lift, transport and place tasks built on them. [`distill`] is the warm
+//! start from the scripted expert (DAgger, then the critic), an algorithm of its own beside
+//! [`ppo`] that a config's `[warm_start]` runs before PPO's first iteration.
 
 pub mod actor_critic;
 pub mod adam;
 pub mod checkpoint;
 pub mod config;
+pub mod distill;
 pub mod env;
 pub mod error;
 pub mod export;

@@ -12,11 +12,18 @@
 //! terminated episode therefore receives, on its last step, the discounted sum of that step's
 //! reward held until the time limit, `r · (1 − γ^k)/(1 − γ)` for the k steps left: failing is
 //! worth what staying in the failed state would have cost, no more and no less.
+//!
+//! **The expert.** Built [`PhaseVecEnv::with_expert`], every world carries one scripted expert
+//! per unit ([`PhaseTask::expert`]), started afresh with each of its episodes (at a reset, an
+//! auto-reset inside [`VecEnv::step`], a hand-over start), and [`VecEnv::expert_actions`] labels
+//! each row with its unit's expert raw action ([`Episode::expert_action`]), the labels DAgger
+//! clones ([`crate::distill`]).
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use moonhaul_core::observation::ACTOR_OBS_DIM;
+use moonhaul_core::scripted::{MissionPlan, PhaseScript};
 use moonhaul_core::state::{Phase, UNIT_ACTION_DIM};
 use moonhaul_sim::handover::HandOver;
 use moonhaul_sim::scene::{Env, EnvState, SceneModel, UNITS};
@@ -49,6 +56,32 @@ struct World {
     task_cpu_s: f64,
     /// What both units' pipelines did since [`VecEnv::take_pipeline_stats`].
     pipeline: PipelineStats,
+    /// Both units' scripted experts (built [`PhaseVecEnv::with_expert`]).
+    expert: Option<Expert>,
+}
+
+/// One world's scripted experts, started with its episode. The scripts carry state from tick to
+/// tick (the lift they asked for, their compliance), so each must see every control step of
+/// its episode exactly once, in order: `next_step` says which one it labels next.
+#[derive(Debug, Clone)]
+struct Expert {
+    plan: MissionPlan,
+    scripts: [PhaseScript; UNITS],
+    /// The episode step ([`Episode::steps`]) the scripts label next.
+    next_step: u64,
+    /// The labels of step `next_step − 1`, given again if asked again before the next step.
+    labels: [[f64; UNIT_ACTION_DIM]; UNITS],
+}
+
+impl Expert {
+    fn new(task: &PhaseTask, plan: MissionPlan) -> Self {
+        Expert {
+            plan,
+            scripts: [task.expert(plan), task.expert(plan)],
+            next_step: 0,
+            labels: [[0.0; UNIT_ACTION_DIM]; UNITS],
+        }
+    }
 }
 
 /// What the reward sees of the payload (privileged truth).
@@ -102,6 +135,8 @@ pub struct PhaseVecEnv {
     gamma: f64,
     worlds: Vec<World>,
     starts: HandOverStarts,
+    /// The plan the worlds' scripted experts fly (`None`: no expert labels).
+    expert_plan: Option<MissionPlan>,
     /// Physics' share of the step wall time since [`VecEnv::take_physics_s`], s.
     physics_s: f64,
 }
@@ -134,6 +169,7 @@ impl PhaseVecEnv {
             gamma,
             worlds: Vec::with_capacity(worlds),
             starts: HandOverStarts::default(),
+            expert_plan: None,
             physics_s: 0.0,
         };
         env.begin_all(0)?;
@@ -150,6 +186,17 @@ impl PhaseVecEnv {
         self.rebuild(0)?;
         self.begin_all(0)?;
         Ok(self)
+    }
+
+    /// The same batch with a scripted expert flying `plan` in every world, for
+    /// [`VecEnv::expert_actions`]. Attach it before the first step: a script that missed the
+    /// start of its episode is refused until the world's next episode.
+    pub fn with_expert(mut self, plan: MissionPlan) -> Self {
+        self.expert_plan = Some(plan);
+        for world in &mut self.worlds {
+            world.expert = Some(Expert::new(&self.task, plan));
+        }
+        self
     }
 
     pub fn task(&self) -> &PhaseTask {
@@ -202,6 +249,7 @@ impl PhaseVecEnv {
                 physics_cpu_s: 0.0,
                 task_cpu_s: 0.0,
                 pipeline: PipelineStats::default(),
+                expert: self.expert_plan.map(|plan| Expert::new(&self.task, plan)),
             };
             observe(&self.task, scene, env, state, &mut world)?;
             worlds.push(world);
@@ -270,6 +318,24 @@ impl World {
             self.handover.as_deref(),
             &mut self.rng,
         )?;
+        if let Some(expert) = &mut self.expert {
+            *expert = Expert::new(task, expert.plan);
+        }
+        Ok(())
+    }
+
+    /// Labels both units at the episode's current step, unless already labelled (the caller
+    /// checked the scripts have seen every earlier step).
+    fn label(&mut self, task: &PhaseTask, scene: &SceneModel) -> Result<(), SimError> {
+        let Some(expert) = &mut self.expert else {
+            return Ok(());
+        };
+        if self.episode.steps() == expert.next_step {
+            for (i, script) in expert.scripts.iter_mut().enumerate() {
+                expert.labels[i] = self.episode.expert_action(task, scene, i, script)?;
+            }
+            expert.next_step += 1;
+        }
         Ok(())
     }
 }
@@ -387,6 +453,46 @@ impl VecEnv for PhaseVecEnv {
         Ok(())
     }
 
+    fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), LearnError> {
+        check_len("expert actions", actions, self.num_envs() * UNIT_ACTION_DIM)?;
+        if self.expert_plan.is_none() {
+            return Err(LearnError::NoExpert {
+                reason: "this phase env was built without a mission plan for its scripted \
+                         expert (a training config's [warm_start] mission)"
+                    .into(),
+            });
+        }
+        // Checked for every world before any script runs, so a refusal changes no script.
+        for (w, world) in self.worlds.iter().enumerate() {
+            let step = world.episode.steps();
+            let next = world.expert.as_ref().map_or(0, |e| e.next_step);
+            if step != next && step + 1 != next {
+                return Err(LearnError::NoExpert {
+                    reason: format!(
+                        "world {w} is at step {step} of its episode, its experts have seen \
+                         {next} steps of it: they must be asked at every step from the \
+                         episode's first"
+                    ),
+                });
+            }
+        }
+        let task = &self.task;
+        self.batch
+            .for_each_with(&mut self.worlds, |scene, _, _, world| {
+                world.label(task, scene)
+            })?;
+        for (w, world) in self.worlds.iter().enumerate() {
+            if let Some(expert) = &world.expert {
+                for (i, labels) in expert.labels.iter().enumerate() {
+                    let row = w * UNITS + i;
+                    actions[row * UNIT_ACTION_DIM..(row + 1) * UNIT_ACTION_DIM]
+                        .copy_from_slice(labels);
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn take_physics_s(&mut self) -> Option<f64> {
         Some(std::mem::take(&mut self.physics_s))
     }
@@ -494,4 +600,130 @@ fn task_step(
         world.begin(task, scene, env, state)?;
     }
     observe(task, scene, env, state, world)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use moonhaul_sim::SimConfig;
+
+    use crate::pendulum::PendulumVecEnv;
+
+    /// Steps of the test's lift episodes: 1 s of settling and 1 s of lifting by the shipped plan,
+    /// so the labels move, and short enough for several episodes.
+    const EPISODE_S: f64 = 2.0;
+
+    fn lift_env(worlds: usize) -> PhaseVecEnv {
+        let scene = SceneModel::new(SimConfig::shipped().unwrap()).unwrap();
+        let mut tasks = TaskConfig::shipped().unwrap();
+        tasks.lift.duration_s = EPISODE_S;
+        let sync = moonhaul_coord::SyncConfig::shipped().unwrap();
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/train/lift.toml");
+        let config = crate::config::TrainConfig::load(path).unwrap();
+        let reward = config.reward.unwrap();
+        PhaseVecEnv::new(
+            Some(Phase::Lift),
+            scene,
+            (tasks, sync),
+            reward,
+            0.98,
+            worlds,
+            1,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn expert_labels_are_each_units_scripted_action_from_each_episodes_start() {
+        let plan = MissionPlan::shipped().unwrap();
+        let mut env = lift_env(2).with_expert(plan);
+        let (n, o, c, a) = (
+            env.num_envs(),
+            ACTOR_OBS_DIM,
+            CRITIC_OBS_DIM,
+            UNIT_ACTION_DIM,
+        );
+        env.reset(3, &mut vec![0.0; n * o], &mut vec![0.0; n * c])
+            .unwrap();
+        let steps = (2.5 * EPISODE_S * env.batch.scene().config.control_hz).round() as usize;
+        // The reference: each world's own episode asked with scripts of the test's, started
+        // afresh whenever an episode is at its first step, as crates/sim/tests/expert.rs does.
+        let task = env.task.clone();
+        let fresh = || [task.expert(plan), task.expert(plan)];
+        let mut scripts = [fresh(), fresh()];
+        let (mut labels, mut again) = (vec![0.0; n * a], vec![0.0; n * a]);
+        let mut buf = VecStep::new(n, o, c);
+        let (mut starts, mut largest) = (0, 0.0f64);
+        for step in 0..steps {
+            if step == steps / 2 {
+                // A restart of world 1 alone, between steps (the trainer's reset_env).
+                env.reset_env(3, &mut vec![0.0; o], &mut vec![0.0; c])
+                    .unwrap();
+            }
+            let mut expected = vec![0.0; n * a];
+            for (w, world) in env.worlds.iter().enumerate() {
+                if world.episode.steps() == 0 {
+                    scripts[w] = fresh();
+                    starts += 1;
+                }
+                for (i, script) in scripts[w].iter_mut().enumerate() {
+                    let row = w * UNITS + i;
+                    let action = world
+                        .episode
+                        .expert_action(&task, env.batch.scene(), i, script)
+                        .unwrap();
+                    expected[row * a..(row + 1) * a].copy_from_slice(&action);
+                }
+            }
+            env.expert_actions(&mut labels).unwrap();
+            assert_eq!(labels, expected, "step {step}");
+            // Asked again before the step: the same labels, no script advanced twice.
+            env.expert_actions(&mut again).unwrap();
+            assert_eq!(again, expected, "step {step}, asked again");
+            largest = labels.iter().fold(largest, |m, v| m.max(v.abs()));
+            env.step(&labels, &mut buf).unwrap();
+        }
+        // Two worlds' first episodes, two auto-resets each, and the restart of world 1.
+        let (first, auto_resets, restart) = (2, 2 * 2, 1);
+        assert!(
+            starts >= first + auto_resets + restart,
+            "{starts} episode starts"
+        );
+        assert!(largest > 0.1, "the expert never moved: {largest}");
+
+        // A step without labels leaves the scripts a step behind: refused, naming the world.
+        env.step(&labels, &mut buf).unwrap();
+        let err = env.expert_actions(&mut labels).unwrap_err().to_string();
+        assert!(
+            err.contains("world 0") && err.contains("every step"),
+            "{err}"
+        );
+        // Until the world's next episode, which starts its experts afresh.
+        env.reset_env(0, &mut vec![0.0; o], &mut vec![0.0; c])
+            .unwrap();
+        let err = env.expert_actions(&mut labels).unwrap_err().to_string();
+        assert!(err.contains("world 1"), "{err}");
+        env.reset(4, &mut vec![0.0; n * o], &mut vec![0.0; n * c])
+            .unwrap();
+        env.expert_actions(&mut labels).unwrap();
+    }
+
+    #[test]
+    fn envs_without_an_expert_say_so() {
+        let mut env = lift_env(1);
+        let err = env.expert_actions(&mut [0.0; 2 * UNIT_ACTION_DIM]);
+        assert!(
+            matches!(&err, Err(LearnError::NoExpert { reason }) if reason.contains("mission plan")),
+            "{err:?}"
+        );
+        let mut pendulum = PendulumVecEnv::new(2);
+        let err = pendulum
+            .expert_actions(&mut [0.0; 2])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("PendulumVecEnv has no scripted expert"),
+            "{err}"
+        );
+    }
 }

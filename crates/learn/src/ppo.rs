@@ -22,6 +22,9 @@ pub struct UpdateStats {
     pub entropy: f64,
     /// KL(old ‖ new) measured before each minibatch step.
     pub kl: f64,
+    /// How much of the rollout's return variance the critic explained before the update
+    /// ([`RolloutStorage::explained_variance`]).
+    pub explained_variance: Option<f64>,
 }
 
 /// Time-outs of one step: which envs were truncated and their final critic observations (all
@@ -198,6 +201,7 @@ impl Ppo {
         let c = &self.config;
         self.storage
             .compute_returns(&last_values, c.gamma, c.lambda);
+        let explained_variance = self.storage.explained_variance();
         let mut sums = [0.0f64; 4];
         let mut lr = self.optimizer.lr();
         let count = (c.minibatches * c.epochs) as f64;
@@ -259,6 +263,7 @@ impl Ppo {
             surrogate_loss: sums[1] / count,
             entropy: sums[2] / count,
             kl: sums[3] / count,
+            explained_variance,
         })
     }
 }

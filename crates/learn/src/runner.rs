@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use tch::{Kind, Tensor};
 
+use crate::actor_critic::ActorCritic;
 use crate::config::TrainConfig;
 use crate::env::{PipelineStats, VecEnv, VecStep};
 use crate::ppo::{EnvAnswer, Ppo, TimeOuts, UpdateStats};
@@ -64,14 +65,14 @@ impl IterationTiming {
 
 /// Running sums of the episodes in progress and a window of finished ones.
 #[derive(Debug)]
-struct EpisodeStats {
+pub(crate) struct EpisodeStats {
     returns: Vec<f64>,
     lengths: Vec<u64>,
     finished: VecDeque<(f64, u64)>,
 }
 
 impl EpisodeStats {
-    fn new(envs: usize) -> Self {
+    pub(crate) fn new(envs: usize) -> Self {
         EpisodeStats {
             returns: vec![0.0; envs],
             lengths: vec![0; envs],
@@ -79,7 +80,7 @@ impl EpisodeStats {
         }
     }
 
-    fn record(&mut self, step: &VecStep) {
+    pub(crate) fn record(&mut self, step: &VecStep) {
         for i in 0..self.returns.len() {
             self.returns[i] += step.rewards[i];
             self.lengths[i] += 1;
@@ -94,7 +95,7 @@ impl EpisodeStats {
         }
     }
 
-    fn means(&self) -> (Option<f64>, Option<f64>) {
+    pub(crate) fn means(&self) -> (Option<f64>, Option<f64>) {
         if self.finished.is_empty() {
             return (None, None);
         }
@@ -124,7 +125,7 @@ pub fn to_f64(t: &Tensor) -> Result<Vec<f64>, LearnError> {
     Ok(f.into_iter().map(f64::from).collect())
 }
 
-fn check_finite(what: &str, data: &[f64]) -> Result<(), LearnError> {
+pub(crate) fn check_finite(what: &str, data: &[f64]) -> Result<(), LearnError> {
     match data.iter().position(|v| !v.is_finite()) {
         Some(i) => Err(LearnError::NonFinite {
             what: format!("{what}[{i}]"),
@@ -136,7 +137,7 @@ fn check_finite(what: &str, data: &[f64]) -> Result<(), LearnError> {
 /// Steps `env` with `actions` and converts its answer to tensors, rewards multiplied by
 /// `reward_scale`; a time-out that is also a termination counts as a termination (no
 /// bootstrap).
-fn step_env(
+pub(crate) fn step_env(
     env: &mut dyn VecEnv,
     buf: &mut VecStep,
     actions: &Tensor,
@@ -280,7 +281,7 @@ impl Runner {
             eval_env,
             ppo,
             progress,
-            eval_seed: iteration_seed(config.run.seed, usize::MAX),
+            eval_seed: eval_seed(config.run.seed),
         })
     }
 
@@ -346,39 +347,49 @@ impl Runner {
         })
     }
 
-    /// Mean undiscounted return of the deterministic policy (the Gaussian mean) over one
-    /// episode per evaluation env, always from the same initial states. Relies on every
-    /// episode ending (tasks have a time limit). Acts on the actor's observations alone, as the
-    /// exported policy does; the critic observations are written but not read.
+    /// [`evaluate`] of the learner's policy on the evaluation envs, from the run's evaluation
+    /// seed.
     pub fn evaluate(&mut self) -> Result<f64, LearnError> {
-        let env = self.eval_env.as_mut();
-        let (n, o, c) = (env.num_envs(), env.obs_dim(), env.critic_obs_dim());
-        let mut obs = vec![0.0; n * o];
-        env.reset(self.eval_seed, &mut obs, &mut vec![0.0; n * c])?;
-        let mut buf = VecStep::new(n, o, c);
-        let mut returns = vec![0.0; n];
-        let mut running = vec![true; n];
-        while running.iter().any(|&r| r) {
-            check_finite("environment observation", &obs)?;
-            let actions = self.ppo.policy().act_deterministic(&to_tensor(&obs, n, o));
-            env.step(&to_f64(&actions)?, &mut buf)?;
-            for i in 0..n {
-                if running[i] {
-                    returns[i] += buf.rewards[i];
-                    running[i] = !(buf.terminated[i] || buf.truncated[i]);
-                }
-            }
-            std::mem::swap(&mut obs, &mut buf.obs);
-        }
-        check_finite("evaluation return", &returns)?;
-        Ok(returns.iter().sum::<f64>() / n as f64)
+        evaluate(self.eval_env.as_mut(), self.ppo.policy(), self.eval_seed)
     }
+}
+
+/// The seed every evaluation of a run resets its evaluation envs with: the same initial states
+/// each time, so evaluations compare.
+pub fn eval_seed(seed: u64) -> u64 {
+    iteration_seed(seed, usize::MAX)
+}
+
+/// Mean undiscounted return of the deterministic `policy` (the Gaussian mean) over one episode
+/// per env of `env`, reset from `seed`. Relies on every episode ending (tasks have a time
+/// limit). Acts on the actor's observations alone, as the exported policy does; the critic
+/// observations are written but not read.
+pub fn evaluate(env: &mut dyn VecEnv, policy: &ActorCritic, seed: u64) -> Result<f64, LearnError> {
+    let (n, o, c) = (env.num_envs(), env.obs_dim(), env.critic_obs_dim());
+    let mut obs = vec![0.0; n * o];
+    env.reset(seed, &mut obs, &mut vec![0.0; n * c])?;
+    let mut buf = VecStep::new(n, o, c);
+    let mut returns = vec![0.0; n];
+    let mut running = vec![true; n];
+    while running.iter().any(|&r| r) {
+        check_finite("environment observation", &obs)?;
+        let actions = policy.act_deterministic(&to_tensor(&obs, n, o));
+        env.step(&to_f64(&actions)?, &mut buf)?;
+        for i in 0..n {
+            if running[i] {
+                returns[i] += buf.rewards[i];
+                running[i] = !(buf.terminated[i] || buf.truncated[i]);
+            }
+        }
+        std::mem::swap(&mut obs, &mut buf.obs);
+    }
+    check_finite("evaluation return", &returns)?;
+    Ok(returns.iter().sum::<f64>() / n as f64)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::actor_critic::ActorCritic;
     use crate::env::check_len;
 
     /// Steps after which every episode of [`Privileged`] is truncated.

@@ -130,6 +130,17 @@ impl RolloutStorage {
         self.step = 0;
     }
 
+    /// How much of the returns' variance the stored values explain,
+    /// `1 − Var[returns − values] / Var[returns]` (after [`RolloutStorage::compute_returns`]):
+    /// 1 for a critic that predicts its targets, ≤ 0 for one no better than their mean. `None`
+    /// when the returns do not vary.
+    pub fn explained_variance(&self) -> Option<f64> {
+        let var = |t: &Tensor| t.var(false).double_value(&[]);
+        let returns = var(&self.returns);
+        let ev = 1.0 - var(&(&self.returns - &self.values)) / returns;
+        (returns > 0.0 && ev.is_finite()).then_some(ev)
+    }
+
     /// `epochs × minibatches` minibatches of `⌊T·N / minibatches⌋` samples. Like rsl_rl, one
     /// random permutation (from libtorch's seeded generator) serves every epoch.
     pub fn minibatches(

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
+use moonhaul_core::scripted::MissionPlan;
 use moonhaul_core::state::Phase;
 
 use moonhaul_core::observation::{
@@ -21,7 +22,8 @@ use crate::phase_env::{HandOverStarts, PhaseVecEnv};
 use crate::LearnError;
 
 /// `num_envs` environments of the config's task: pendulums, or simulated worlds of a phase
-/// task (two rows each, one per unit; see [`crate::phase_env`]).
+/// task (two rows each, one per unit; see [`crate::phase_env`]), with the scripted expert of
+/// `[warm_start] mission` where the config has a warm start.
 ///
 /// `payload_file`, a payload URDF (see [`moonhaul_sim::scene`]), replaces the sim config's
 /// `randomization.payloads`, so every world carries it and the action map is built around its
@@ -79,18 +81,21 @@ pub fn make_env(
         }
         _ => HandOverStarts::default(),
     };
-    Ok(Box::new(
-        PhaseVecEnv::new(
-            phase,
-            scene,
-            (tasks, sync),
-            reward,
-            config.ppo.gamma,
-            num_envs,
-            config.run.threads,
-        )?
-        .with_handover_starts(starts)?,
-    ))
+    let mut env = PhaseVecEnv::new(
+        phase,
+        scene,
+        (tasks, sync),
+        reward,
+        config.ppo.gamma,
+        num_envs,
+        config.run.threads,
+    )?
+    .with_handover_starts(starts)?;
+    // The scripted expert DAgger clones (crate::distill), only where a warm start asks for it.
+    if let Some(warm) = &config.warm_start {
+        env = env.with_expert(MissionPlan::load(&warm.mission)?);
+    }
+    Ok(Box::new(env))
 }
 
 /// The phase recorded in an exported policy, and a `task` metadata entry.

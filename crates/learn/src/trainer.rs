@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! <run>/config.toml                         the resolved config (after --seed)
-//! <run>/metrics.csv                         one row per iteration
+//! <run>/metrics.csv                         one row per iteration (and warm-start round)
 //! <run>/return.png, <run>/entropy.png       learning curves
 //! <run>/checkpoints/iter_NNNNNN.safetensors checkpoints (see crate::checkpoint)
 //! <run>/policy.safetensors                  the actor as an onboard policy file
@@ -20,12 +20,13 @@ use moonhaul_core::policy::Policy;
 use crate::actor_critic::ActorCritic;
 use crate::checkpoint::{self, write_atomic};
 use crate::config::TrainConfig;
+use crate::distill;
 use crate::export::export_policy;
 use crate::metrics::{MetricsLog, MetricsRow};
 use crate::plot::plot_curves;
 use crate::ppo::Ppo;
 use crate::provenance;
-use crate::runner::{Progress, Runner};
+use crate::runner::{eval_seed, evaluate, Progress, Runner};
 use crate::task::{export_identity, make_env};
 use crate::LearnError;
 
@@ -234,6 +235,12 @@ pub fn checkpoint_path(run_dir: &Path, iteration: usize) -> PathBuf {
 }
 
 /// Trains `config` into `options.run_dir`, calling `on_iteration` after every iteration.
+///
+/// A config with `[warm_start]` first runs it ([`crate::distill`]) unless the run is resumed:
+/// its rounds are rows of iteration 0 (`on_iteration` sees them too), the warm actor is
+/// evaluated and checkpointed as iteration 0, and PPO continues from it. A stop during the
+/// warm start ends the run after the round with that checkpoint of the partly warm actor; a
+/// resume from it continues with PPO.
 pub fn train(
     config: &TrainConfig,
     options: &TrainOptions,
@@ -252,8 +259,8 @@ pub fn train(
     tch::manual_seed(config.run.seed as i64);
     let task = config.run.task;
     let payload_file = options.payload_file.as_deref();
-    let env = make_env(config, config.env.num_envs, payload_file)?;
-    let eval_env = make_env(config, config.run.eval_episodes, payload_file)?;
+    let mut env = make_env(config, config.env.num_envs, payload_file)?;
+    let mut eval_env = make_env(config, config.run.eval_episodes, payload_file)?;
     let (obs_dim, critic_obs_dim) = (env.obs_dim(), env.critic_obs_dim());
     let action_dim = env.action_dim();
     rollout_size(
@@ -269,7 +276,7 @@ pub fn train(
         config.env.steps_per_env,
         env.num_envs(),
     );
-    let progress = match &options.resume {
+    let mut progress = match &options.resume {
         Some(path) => checkpoint::load(path, &mut ppo, task)?,
         None => Progress::default(),
     };
@@ -280,12 +287,42 @@ pub fn train(
         &dir.join("metrics.csv"),
         options.resume.as_ref().map(|_| progress.iteration),
     )?;
-    let mut runner = Runner::new(config, env, eval_env, ppo, progress)?;
-
     let mut eval_return = metrics.rows().iter().rev().find_map(|r| r.eval_return);
     let mut last_checkpoint = None;
     let mut stopped = false;
-    while runner.progress().iteration < config.run.iterations {
+    if let (Some(warm), None) = (&config.warm_start, &options.resume) {
+        let rounds = warm.rounds + warm.critic_warmup_iterations;
+        let mut done = 0;
+        let completed = distill::warm_start(
+            config,
+            env.as_mut(),
+            ppo.policy_mut(),
+            || options.stop.load(Ordering::SeqCst),
+            |stats, policy| {
+                done += 1;
+                progress.env_steps += stats.env_steps;
+                let mut row =
+                    MetricsRow::warm(stats, progress.env_steps, policy, warm.learning_rate);
+                if done == rounds {
+                    let seed = eval_seed(config.run.seed);
+                    row.eval_return = Some(evaluate(eval_env.as_mut(), policy, seed)?);
+                    eval_return = row.eval_return;
+                }
+                metrics.append(row)?;
+                on_iteration(&row);
+                Ok(())
+            },
+        )?;
+        stopped = !completed;
+        if completed {
+            let path = checkpoint_path(dir, progress.iteration);
+            checkpoint::save(&path, &ppo, progress, task)?;
+            last_checkpoint = Some(path);
+            plot_curves(dir, metrics.rows())?;
+        }
+    }
+    let mut runner = Runner::new(config, env, eval_env, ppo, progress)?;
+    while !stopped && runner.progress().iteration < config.run.iterations {
         if options.stop.load(Ordering::SeqCst) {
             stopped = true;
             break;

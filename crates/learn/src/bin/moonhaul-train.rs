@@ -11,8 +11,11 @@
 //! instead of the sim config's payloads; the config is not changed, so `--resume` and
 //! `--export-best` of such a run need the same `--payload` again.
 //!
-//! Ctrl-C stops after the current iteration and keeps a checkpoint of it; a second Ctrl-C
-//! exits at once.
+//! A config with `[warm_start]` first clones the scripted expert (DAgger, then the critic's
+//! warm-up; `moonhaul_learn::distill`), shown round by round, then runs PPO from it.
+//!
+//! Ctrl-C stops after the current iteration (or warm-start round) and keeps a checkpoint of it;
+//! a second Ctrl-C exits at once.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -161,8 +164,10 @@ fn main() -> Result<()> {
         payload_file: args.payload.clone(),
     };
     let mut last_eval = None;
+    let (mut dagger_rounds, mut critic_rounds) = (0, 0);
     let summary = train(&config, &options, |row| {
         let fmt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1}"));
+        let fmt3 = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
         last_eval = row.eval_return.or(last_eval);
         bar.set_position(row.iteration as u64);
         let clamp = match (row.mean_t_max, row.hold_fraction, row.mean_grasp_force_n) {
@@ -174,14 +179,43 @@ fn main() -> Result<()> {
             }
             _ => String::new(),
         };
-        bar.set_message(format!(
-            "{:.0} steps/s | return {} | eval {} | kl {:.4} | lr {:.1e}{clamp}",
-            row.steps_per_s,
-            fmt(row.mean_return),
-            fmt(last_eval),
-            row.kl,
-            row.lr
-        ));
+        let warm = config.warm_start.as_ref();
+        let message = match (row.iteration, row.bc_loss, warm) {
+            // The warm start's rows, before PPO's first iteration (see moonhaul_learn::distill).
+            (0, Some(bc_loss), Some(warm)) => {
+                dagger_rounds += 1;
+                format!(
+                    "warm start: DAgger round {dagger_rounds}/{} | beta {:.2} | bc loss {bc_loss:.4} \
+                     | expert agreement {} % | return {}{clamp}",
+                    warm.rounds,
+                    row.dagger_beta.unwrap_or(f64::NAN),
+                    fmt(row.expert_agreement.map(|a| a * 100.0)),
+                    fmt(row.mean_return),
+                )
+            }
+            (0, None, Some(warm)) => {
+                critic_rounds += 1;
+                format!(
+                    "warm start: critic {critic_rounds}/{} | explained variance {} | value loss \
+                     {} | return {} | eval {}",
+                    warm.critic_warmup_iterations,
+                    fmt3(row.explained_variance),
+                    fmt3(row.value_loss),
+                    fmt(row.mean_return),
+                    fmt(last_eval),
+                )
+            }
+            _ => format!(
+                "{:.0} steps/s | return {} | eval {} | kl {} | ev {} | lr {:.1e}{clamp}",
+                row.steps_per_s,
+                fmt(row.mean_return),
+                fmt(last_eval),
+                row.kl.map_or("-".to_string(), |kl| format!("{kl:.4}")),
+                fmt3(row.explained_variance),
+                row.lr
+            ),
+        };
+        bar.set_message(message);
     })
     .with_context(|| {
         format!(
