@@ -541,7 +541,8 @@ fn check_frame(f: &WorldFrame, team: usize) -> Result<(), String> {
     );
     for (field, q) in orientations {
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
-        if !((norm - 1.0).abs() <= QUATERNION_NORM_TOLERANCE) {
+        // NaN fails the range check too.
+        if !(1.0 - QUATERNION_NORM_TOLERANCE..=1.0 + QUATERNION_NORM_TOLERANCE).contains(&norm) {
             return Err(format!(
                 "{field} {q:?} is not a rotation (a unit quaternion; its norm is {norm:?})"
             ));

@@ -291,7 +291,8 @@ fn unit_logs_that_cannot_be_used_are_named_with_the_reason() {
     write_unit_log(&u1, 1, |_| {});
     assert_eq!(unread(dir.path()), Vec::<String>::new());
 
-    let cases: Vec<(&str, Box<dyn Fn()>)> = vec![
+    type Damage<'a> = Box<dyn Fn() + 'a>;
+    let cases: Vec<(&str, Damage)> = vec![
         (
             "unit-0.mcap is missing",
             Box::new(|| std::fs::remove_file(&u0).unwrap()),
