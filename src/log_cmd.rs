@@ -520,31 +520,39 @@ fn check_frame(f: &WorldFrame, team: usize) -> Result<(), String> {
             "payload_tilt_deg {tilt:?} is not a tilt from upright (0 to 180°)"
         ));
     }
-    let positions = std::iter::once(("payload_position_m".to_owned(), f.payload_position_m)).chain(
-        (f.base_position_m.iter().enumerate()).map(|(i, p)| (format!("base_position_m[{i}]"), *p)),
+    // (field, base index: `None` for the payload's); the name is written only when refused.
+    let name = |field: &str, base: Option<usize>| match base {
+        Some(i) => format!("{field}[{i}]"),
+        None => field.to_owned(),
+    };
+    let positions = std::iter::once(("payload_position_m", None, &f.payload_position_m)).chain(
+        (f.base_position_m.iter().enumerate()).map(|(i, p)| ("base_position_m", Some(i), p)),
     );
-    for (field, p) in positions {
+    for (field, base, p) in positions {
         if !p.iter().all(|c| c.abs() <= MAX_WORLD_EXTENT_M) {
             return Err(format!(
-                "{field} {p:?} is not a position in the world (each coordinate within \
-                 ±{MAX_WORLD_EXTENT_M} m)"
+                "{} {p:?} is not a position in the world (each coordinate within \
+                 ±{MAX_WORLD_EXTENT_M} m)",
+                name(field, base)
             ));
         }
     }
     let orientations = std::iter::once((
-        "payload_orientation_xyzw".to_owned(),
-        f.payload_orientation_xyzw,
+        "payload_orientation_xyzw",
+        None,
+        &f.payload_orientation_xyzw,
     ))
     .chain(
         (f.base_orientation_xyzw.iter().enumerate())
-            .map(|(i, q)| (format!("base_orientation_xyzw[{i}]"), *q)),
+            .map(|(i, q)| ("base_orientation_xyzw", Some(i), q)),
     );
-    for (field, q) in orientations {
+    for (field, base, q) in orientations {
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
         // NaN fails the range check too.
         if !(1.0 - QUATERNION_NORM_TOLERANCE..=1.0 + QUATERNION_NORM_TOLERANCE).contains(&norm) {
             return Err(format!(
-                "{field} {q:?} is not a rotation (a unit quaternion; its norm is {norm:?})"
+                "{} {q:?} is not a rotation (a unit quaternion; its norm is {norm:?})",
+                name(field, base)
             ));
         }
     }
@@ -885,34 +893,32 @@ fn strangers(folder: &Path, team: usize) -> Vec<String> {
 fn check_ticks(unit: usize, records: &[TickRecord]) -> Result<(), String> {
     let mut last: Option<&TickRecord> = None;
     for (k, r) in records.iter().enumerate() {
-        let at = format!(
-            "record {} (tick {}, stamped {} µs)",
-            k + 1,
-            r.tick,
-            r.stamp_us
-        );
-        if r.unit != unit {
-            return Err(format!("{at} is unit {}'s, not unit {unit}'s", r.unit));
-        }
-        if !(0.0..=1.0).contains(&r.t_max) {
-            return Err(format!("{at}: t_max {:?} is outside [0, 1]", r.t_max));
-        }
-        if let Some(d) = r.tracking_d.filter(|d| !(d.is_finite() && *d >= 0.0)) {
-            return Err(format!("{at}: tracking_d {d:?} is not a distance"));
-        }
-        if let Some(l) = last {
-            if r.tick <= l.tick {
-                return Err(format!(
-                    "{at}: its tick does not advance past the record before's ({})",
+        let problem = if r.unit != unit {
+            Some(format!(" is unit {}'s, not unit {unit}'s", r.unit))
+        } else if !(0.0..=1.0).contains(&r.t_max) {
+            Some(format!(": t_max {:?} is outside [0, 1]", r.t_max))
+        } else if let Some(d) = r.tracking_d.filter(|d| !(d.is_finite() && *d >= 0.0)) {
+            Some(format!(": tracking_d {d:?} is not a distance"))
+        } else {
+            match last {
+                Some(l) if r.tick <= l.tick => Some(format!(
+                    ": its tick does not advance past the record before's ({})",
                     l.tick
-                ));
-            }
-            if r.stamp_us < l.stamp_us {
-                return Err(format!(
-                    "{at}: stamped before the record before ({} µs)",
+                )),
+                Some(l) if r.stamp_us < l.stamp_us => Some(format!(
+                    ": stamped before the record before ({} µs)",
                     l.stamp_us
-                ));
+                )),
+                _ => None,
             }
+        };
+        if let Some(problem) = problem {
+            return Err(format!(
+                "record {} (tick {}, stamped {} µs){problem}",
+                k + 1,
+                r.tick,
+                r.stamp_us
+            ));
         }
         last = Some(r);
     }
