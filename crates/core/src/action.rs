@@ -123,11 +123,27 @@ impl ActionMap {
         f
     }
 
-    /// The increment that would move `previous` to `desired` (a controller that computes an
-    /// absolute command, such as the scripted IK controller); [`ActionMap::target`] bounds it.
-    pub fn toward(previous: &UnitCommand, desired: &UnitCommand) -> [f64; UNIT_ACTION_DIM] {
+    /// The increment that moves `previous` toward `desired` (a controller that computes an
+    /// absolute command, such as the scripted IK controller), within the steps. The arm's part
+    /// is scaled down as a whole until every joint's fits its step, so a command beyond one
+    /// tick's reach is approached along the straight line in joint space: clipping each joint
+    /// on its own turns the motion, and an IK step near a singular pose (one joint asked for
+    /// 0.1 rad, the others for a millimetre of end-effector travel) then moved the others in
+    /// full and that one by its step, running the end effector 3 mm per tick below its path
+    /// until the placement held without an admissible step (measured, offset-COM crate). The
+    /// wheel speeds are left to [`ActionMap::target`]'s clip, each on its own.
+    pub fn toward(&self, previous: &UnitCommand, desired: &UnitCommand) -> [f64; UNIT_ACTION_DIM] {
         let (from, to) = (previous.to_action(), desired.to_action());
-        std::array::from_fn(|k| to[k] - from[k])
+        let mut delta: [f64; UNIT_ACTION_DIM] = std::array::from_fn(|k| to[k] - from[k]);
+        let arm = WHEEL_JOINTS..UNIT_ACTION_DIM;
+        let worst = arm
+            .clone()
+            .map(|k| delta[k].abs() / self.step[k])
+            .fold(1.0, f64::max);
+        for d in &mut delta[arm] {
+            *d /= worst;
+        }
+        delta
     }
 
     /// The metadata a policy file records for this map (its steps are the scale tensor).
@@ -229,13 +245,20 @@ mod tests {
         near.arm_position_rad[1] += 0.005;
         near.wheel_velocity_radps[0] = 0.05;
         assert_eq!(
-            map.target(&spec, &previous, &ActionMap::toward(&previous, &near)),
+            map.target(&spec, &previous, &map.toward(&previous, &near)),
             near
         );
+        // Far: the arm moves along the line toward it, its largest joint by the step.
         let mut far = previous;
         far.arm_position_rad[1] += 0.5;
-        let f = map.target(&spec, &previous, &ActionMap::toward(&previous, &far));
+        far.arm_position_rad[3] += 0.05;
+        far.wheel_velocity_radps = [1.0, 0.5];
+        let f = map.target(&spec, &previous, &map.toward(&previous, &far));
         assert!((f.arm_position_rad[1] - 0.31).abs() < 1e-12);
+        assert!((f.arm_position_rad[3] - (-1.5 + 0.001)).abs() < 1e-12);
+        assert_eq!(f.arm_position_rad[0], 0.0);
+        // Each wheel speed is clipped on its own.
+        assert_eq!(f.wheel_velocity_radps, [0.1, 0.1]);
     }
 
     #[test]

@@ -678,7 +678,14 @@ impl Onboard {
                 acted.is_err() || !delta.iter().all(|v| v.is_finite())
             }
             // An observation exists only once the rest grasp was captured.
-            (Active::Scripted { script, .. }, Some(_), Some(_)) => match &self.reference {
+            (
+                Active::Scripted {
+                    script,
+                    map: script_map,
+                },
+                Some(_),
+                Some(_),
+            ) => match &self.reference {
                 Some(reference) => {
                     let input = ScriptInput {
                         spec: &self.spec,
@@ -695,7 +702,7 @@ impl Onboard {
                     };
                     match script.command(&input) {
                         Ok(desired) => {
-                            *delta = ActionMap::toward(&self.previous, &desired);
+                            *delta = script_map.toward(&self.previous, &desired);
                             if self.corrupt_policy {
                                 delta[0] = f64::NAN;
                             }

@@ -585,7 +585,7 @@ impl Episode {
         let desired = script
             .command(&input)
             .map_err(|e| SimError::Kinematics(format!("the scripted expert of unit {i}: {e}")))?;
-        let delta = ActionMap::toward(&self.previous[i], &desired);
+        let delta = task.map.toward(&self.previous[i], &desired);
         Ok(std::array::from_fn(|k| {
             (delta[k] / task.map.step[k]).clamp(-1.0, 1.0)
         }))
