@@ -535,6 +535,8 @@ struct DeployedCases {
     clamp: Value,
     /// d(U_{k−1}, Y_k) over the loaded policy ticks of every mission, by phase.
     tracking_d: deployed::TrackingD,
+    /// What the clamp issued over every mission, by phase (lift, transport, place).
+    clamp_by_phase: [moonhaul_coord::ClampTally; 3],
     max_grasp_force_n: f64,
     mean_grasp_force_n: f64,
     /// Missions per outcome ("completed", or the first stop and its phase).
@@ -564,6 +566,27 @@ fn deployed_json(episodes: usize, d: &DeployedCases) -> Value {
         map.insert("max_release_height_m".into(), json!(d.max_release_height_m));
     }
     v
+}
+
+/// What the clamp issued over `tally`'s ticks (the `clamp` object's own figures).
+fn clamp_json(tally: &moonhaul_coord::ClampTally) -> Value {
+    json!({
+        "mean_t_max": tally.mean_t_max().unwrap_or(0.0),
+        "clamped_tick_fraction": tally.clamped_fraction().unwrap_or(0.0),
+        "hold_tick_fraction": tally.hold_fraction().unwrap_or(0.0),
+        "no_step_fraction": tally.no_step_fraction().unwrap_or(0.0),
+        "ticks": tally.ticks,
+    })
+}
+
+/// `clamp.by_phase`: the clamp's figures over each phase's ticks (lift, transport, place), so a
+/// `no_step_fraction` names the phase it comes from.
+fn clamp_by_phase_json(by_phase: &[moonhaul_coord::ClampTally; 3]) -> Value {
+    json!({
+        "lift": clamp_json(&by_phase[0]),
+        "transport": clamp_json(&by_phase[1]),
+        "place": clamp_json(&by_phase[2]),
+    })
 }
 
 /// `mean_tracking_d_by_phase`: the mean d(U_{k−1}, Y_k) of each phase's loaded ticks (null
@@ -646,26 +669,38 @@ fn deployed_cases(
         cases.push((case, summary));
     }
     let sum = |f: fn(&deployed::DeployedMission) -> f64| missions.iter().map(f).sum::<f64>();
-    let mut tally = moonhaul_coord::ClampTally::default();
+    let mut by_phase = [moonhaul_coord::ClampTally::default(); 3];
     let mut tracking_d = deployed::TrackingD::default();
     for m in &missions {
-        tally.merge(&m.clamp);
+        for (sum, t) in by_phase.iter_mut().zip(&m.clamp_by_phase) {
+            sum.merge(t);
+        }
         tracking_d.merge(&m.tracking_d);
     }
+    let mut tally = moonhaul_coord::ClampTally::default();
+    by_phase.iter().for_each(|t| tally.merge(t));
     let n = missions.len().max(1) as f64;
-    let clamp = json!({
-        "mean_t_max": tally.mean_t_max().unwrap_or(0.0),
-        "clamped_tick_fraction": tally.clamped_fraction().unwrap_or(0.0),
-        "hold_tick_fraction": tally.hold_fraction().unwrap_or(0.0),
-        "no_step_fraction": tally.no_step_fraction().unwrap_or(0.0),
-        "mean_tracking_d": tracking_d.mean().unwrap_or(0.0),
-        "mean_tracking_d_by_phase": tracking_d_by_phase(&tracking_d),
-        "completed_rate": missions.iter().filter(|m| m.completed).count() as f64 / n,
-    });
+    let mut clamp = clamp_json(&tally);
+    if let Value::Object(map) = &mut clamp {
+        map.insert(
+            "mean_tracking_d".into(),
+            json!(tracking_d.mean().unwrap_or(0.0)),
+        );
+        map.insert(
+            "mean_tracking_d_by_phase".into(),
+            tracking_d_by_phase(&tracking_d),
+        );
+        map.insert("by_phase".into(), clamp_by_phase_json(&by_phase));
+        map.insert(
+            "completed_rate".into(),
+            json!(missions.iter().filter(|m| m.completed).count() as f64 / n),
+        );
+    }
     Ok(DeployedCases {
         cases,
         clamp,
         tracking_d,
+        clamp_by_phase: by_phase,
         max_grasp_force_n: missions
             .iter()
             .map(|m| m.max_grasp_force_n)
@@ -848,7 +883,8 @@ fn write_table(
 }
 
 /// The deployed missions of one controller below the table: completed of total, the mean
-/// d(U_{k−1}, Y_k) of each phase's loaded ticks, then every outcome with its count.
+/// d(U_{k−1}, Y_k) of each phase's loaded ticks, each phase's holds and ticks without an
+/// admissible step, then every outcome with its count.
 fn write_deployed_outcomes(
     out: &mut String,
     controller: &str,
@@ -866,6 +902,18 @@ fn write_deployed_outcomes(
         mean(d.tracking_d.mean_of(Phase::Place)),
         mean(d.tracking_d.mean()),
     )?;
+    let percent = |v: Option<f64>| v.map_or("-".to_owned(), |v| format!("{:.2} %", 100.0 * v));
+    let [lift, transport, place] = &d.clamp_by_phase;
+    writeln!(
+        out,
+        "  holds / no admissible step: lift {} / {}, transport {} / {}, place {} / {}",
+        percent(lift.hold_fraction()),
+        percent(lift.no_step_fraction()),
+        percent(transport.hold_fraction()),
+        percent(transport.no_step_fraction()),
+        percent(place.hold_fraction()),
+        percent(place.no_step_fraction()),
+    )?;
     for (outcome, count) in d.outcomes.iter().filter(|(o, _)| *o != "completed") {
         writeln!(out, "  {count:>5} × {outcome}")?;
     }
@@ -881,10 +929,17 @@ mod tests {
         let mut tracking_d = deployed::TrackingD::default();
         tracking_d.add(Phase::Lift, 0.1);
         tracking_d.add(Phase::Transport, 0.3);
+        let mut clamp_by_phase = [moonhaul_coord::ClampTally::default(); 3];
+        for _ in 0..3 {
+            clamp_by_phase[0].record(1.0, None);
+        }
+        clamp_by_phase[0].record(0.0, Some(moonhaul_coord::HoldReason::NoAdmissibleStep));
+        clamp_by_phase[2].record(0.5, None);
         let d = DeployedCases {
             cases: Vec::new(),
             clamp: json!({}),
             tracking_d,
+            clamp_by_phase,
             max_grasp_force_n: 0.0,
             mean_grasp_force_n: 0.0,
             outcomes: [
@@ -904,6 +959,8 @@ mod tests {
             [
                 "gate+clamp, scripted IK: 8/10 missions completed; mean d(U_{k−1}, Y_k) \
                  loaded: lift 0.100, transport 0.300, place - (all 0.200)",
+                "  holds / no admissible step: lift 25.00 % / 25.00 %, transport - / -, \
+                 place 0.00 % / 0.00 %",
                 "      2 × unit 1 stopped in transport: tracking fault",
             ]
         );
@@ -911,5 +968,10 @@ mod tests {
             tracking_d_by_phase(&tracking_d),
             json!({"lift": 0.1, "transport": 0.3, "place": null})
         );
+        let by_phase = clamp_by_phase_json(&d.clamp_by_phase);
+        assert_eq!(by_phase["lift"]["no_step_fraction"], json!(0.25));
+        assert_eq!(by_phase["lift"]["ticks"], json!(4));
+        assert_eq!(by_phase["place"]["mean_t_max"], json!(0.5));
+        assert_eq!(by_phase["transport"]["ticks"], json!(0));
     }
 }

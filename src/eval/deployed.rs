@@ -52,8 +52,10 @@ pub struct Stack {
 /// One deployed mission's rows, split by phase, and what the pipeline did.
 pub struct DeployedMission {
     pub segments: ScriptedSegments,
-    /// What the clamp issued on the unit ticks in Lift, Transport or Place (both units).
-    pub clamp: ClampTally,
+    /// What the clamp issued on the unit ticks (both units), by the phase of the tick (lift,
+    /// transport, place; [`policy_phase_slot`]): where the holds and the ticks without an
+    /// admissible step fall.
+    pub clamp_by_phase: [ClampTally; 3],
     /// d(U_{k−1}, Y_k) over loaded policy ticks (grasp closed), by phase.
     pub tracking_d: TrackingD,
     /// Largest and mean grasp force (simulator truth) while grasped, N.
@@ -85,20 +87,20 @@ pub struct TrackingD {
     ticks: [u64; 3],
 }
 
-impl TrackingD {
-    /// The slot of a policy phase; `None` for Idle.
-    fn slot(phase: Phase) -> Option<usize> {
-        match phase {
-            Phase::Lift => Some(0),
-            Phase::Transport => Some(1),
-            Phase::Place => Some(2),
-            Phase::Idle => None,
-        }
+/// The slot of a policy phase in per-phase figures (lift, transport, place); `None` for Idle.
+pub fn policy_phase_slot(phase: Phase) -> Option<usize> {
+    match phase {
+        Phase::Lift => Some(0),
+        Phase::Transport => Some(1),
+        Phase::Place => Some(2),
+        Phase::Idle => None,
     }
+}
 
+impl TrackingD {
     /// Counts `d` of a tick committed to `phase` (Idle ticks run no policy: ignored).
     pub fn add(&mut self, phase: Phase, d: f64) {
-        if let Some(k) = Self::slot(phase) {
+        if let Some(k) = policy_phase_slot(phase) {
             self.sum[k] += d;
             self.ticks[k] += 1;
         }
@@ -124,7 +126,7 @@ impl TrackingD {
 
     /// The mean over `phase`'s ticks; `None` without any (or for Idle).
     pub fn mean_of(&self, phase: Phase) -> Option<f64> {
-        let k = Self::slot(phase)?;
+        let k = policy_phase_slot(phase)?;
         (self.ticks[k] > 0).then(|| self.sum[k] / self.ticks[k] as f64)
     }
 }
@@ -323,7 +325,7 @@ fn ground_under_payload(state: &EnvState) -> f64 {
 #[derive(Default)]
 struct Tally {
     segments: Option<ScriptedSegments>,
-    clamp: ClampTally,
+    clamp_by_phase: [ClampTally; 3],
     tracking_d: TrackingD,
     force_sum_n: f64,
     force_samples: u64,
@@ -361,7 +363,9 @@ impl Tally {
         if !r.phase.has_policy() {
             return;
         }
-        self.clamp.record(r.t_max, r.hold);
+        if let Some(k) = policy_phase_slot(r.phase) {
+            self.clamp_by_phase[k].record(r.t_max, r.hold);
+        }
         if let (true, Some(d)) = (grasped, r.tracking_d) {
             self.tracking_d.add(r.phase, d);
         }
@@ -424,7 +428,7 @@ impl Tally {
                 transport: Vec::new(),
                 place: Vec::new(),
             }),
-            clamp: self.clamp,
+            clamp_by_phase: self.clamp_by_phase,
             tracking_d: self.tracking_d,
             max_grasp_force_n: self.max_grasp_force_n,
             mean_grasp_force_n: if self.force_samples > 0 {
