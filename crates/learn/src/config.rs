@@ -54,8 +54,13 @@ pub struct WarmStartConfig {
     pub learning_rate: f64,
     /// The aggregated buffer keeps the most recent this many labelled rows.
     pub buffer_rows: usize,
-    /// Share of rows the expert drives in the first round; it falls linearly to 0 in the last.
+    /// Share of rows the expert drives in the first round; it falls linearly to 0 over the
+    /// rounds before the last `student_rounds`.
     pub beta_start: f64,
+    /// Of `rounds`, how many end the warm start at β = 0 after the fall: the actor alone, every
+    /// state it reaches labelled with the expert's correction (0: the fall reaches 0 in the last
+    /// round).
+    pub student_rounds: usize,
     /// Rollouts of the cloned actor that fit only the critic before PPO (0: none).
     pub critic_warmup_iterations: usize,
 }
@@ -439,6 +444,13 @@ impl WarmStartConfig {
         // As `ppo.learning_rate`; β is a probability.
         positive("learning_rate", self.learning_rate, 1.0)?;
         in_range("beta_start", self.beta_start, 0.0, 1.0)?;
+        // At least one round shows the actor the expert's own states at `beta_start`.
+        count(
+            "student_rounds",
+            self.student_rounds as u64,
+            0,
+            self.rounds as u64 - 1,
+        )?;
         count(
             "critic_warmup_iterations",
             self.critic_warmup_iterations as u64,
@@ -448,13 +460,17 @@ impl WarmStartConfig {
     }
 
     /// β of round `round` (0-based): `beta_start` in the first, falling linearly to 0 in the
-    /// last (a single round keeps `beta_start`).
+    /// last round before the `student_rounds`, 0 in those (a fall of one round keeps
+    /// `beta_start`).
     pub fn beta(&self, round: usize) -> f64 {
-        if self.rounds <= 1 {
+        let falling = self.rounds.saturating_sub(self.student_rounds).max(1);
+        if round >= falling {
+            return 0.0;
+        }
+        if falling == 1 {
             return self.beta_start;
         }
-        let done = round.min(self.rounds - 1) as f64 / (self.rounds - 1) as f64;
-        self.beta_start * (1.0 - done)
+        self.beta_start * (1.0 - round as f64 / (falling - 1) as f64)
     }
 }
 
@@ -500,24 +516,31 @@ mod tests {
         assert_eq!(plan.beta(0), 1.0);
         assert_eq!(plan.beta(plan.rounds - 1), 0.0);
         assert!(warm.run.iterations < lift.run.iterations);
+        // PPO explores around the clone, not as widely as from scratch.
+        assert!(warm.policy.init_std < lift.policy.init_std);
         (warm.run.name, warm.run.iterations) = (lift.run.name.clone(), lift.run.iterations);
+        warm.policy.init_std = lift.policy.init_std;
         assert_eq!(warm, lift, "lift_warm drifted from configs/train/lift.toml");
     }
 
     #[test]
     fn beta_falls_linearly_to_zero_over_the_rounds() {
         let mut warm = repo_config("lift_warm").warm_start.unwrap();
-        (warm.rounds, warm.beta_start) = (5, 0.8);
+        (warm.rounds, warm.beta_start, warm.student_rounds) = (5, 0.8, 0);
+        let close = |betas: &[f64], expected: &[f64]| {
+            betas.len() == expected.len()
+                && betas
+                    .iter()
+                    .zip(expected)
+                    .all(|(b, e)| (b - e).abs() < 1e-12)
+        };
         let betas: Vec<f64> = (0..5).map(|k| warm.beta(k)).collect();
-        let expected = [0.8, 0.6, 0.4, 0.2, 0.0];
-        assert!(
-            betas
-                .iter()
-                .zip(expected)
-                .all(|(b, e)| (b - e).abs() < 1e-12),
-            "{betas:?}"
-        );
-        warm.rounds = 1;
+        assert!(close(&betas, &[0.8, 0.6, 0.4, 0.2, 0.0]), "{betas:?}");
+        // Student rounds end the warm start at 0 after a fall over the others.
+        (warm.rounds, warm.beta_start, warm.student_rounds) = (6, 0.9, 2);
+        let betas: Vec<f64> = (0..6).map(|k| warm.beta(k)).collect();
+        assert!(close(&betas, &[0.9, 0.6, 0.3, 0.0, 0.0, 0.0]), "{betas:?}");
+        (warm.rounds, warm.student_rounds) = (1, 0);
         assert_eq!(warm.beta(0), 0.8, "a single round keeps beta_start");
     }
 
@@ -557,6 +580,7 @@ mod tests {
             (set("buffer_rows", "4194305"), "warm_start.buffer_rows"),
             (set("beta_start", "1.5"), "warm_start.beta_start"),
             (set("beta_start", "-0.1"), "warm_start.beta_start"),
+            (set("student_rounds", "8"), "warm_start.student_rounds"),
             (
                 set("critic_warmup_iterations", "10001"),
                 "warm_start.critic_warmup_iterations",

@@ -8,12 +8,12 @@
 //! **DAgger** (Ross, Gordon & Bagnell, 2011). Round k of K rolls `steps_per_round` control
 //! steps on every world; each row executes its expert's raw action with probability β_k, else
 //! the actor's deterministic mean, and every visited state is labelled with the expert's action
-//! ([`VecEnv::expert_actions`]). β falls linearly from `beta_start` in the first round to 0 in
-//! the last: the first rounds show the actor the expert's own states (behaviour cloning), the
-//! later ones the states the actor's own mistakes lead to, labelled with the expert's
-//! correction, which plain cloning never sees. The labelled rows join a buffer of the most
-//! recent `buffer_rows`, and the actor's mean is fitted to them by squared error, `epochs` ×
-//! `minibatches` Adam steps per round. As PPO's rollout does, the actor's observation
+//! ([`VecEnv::expert_actions`]). β falls linearly from `beta_start` in the first round to 0,
+//! then stays 0 for the last `student_rounds`: the first rounds show the actor the expert's own
+//! states (behaviour cloning), the later ones the states the actor's own mistakes lead to,
+//! labelled with the expert's correction, which plain cloning never sees. The labelled rows
+//! join a buffer of the most recent `buffer_rows`, and the actor's mean is fitted to them by
+//! squared error, `epochs` × `minibatches` Adam steps per round. As PPO's rollout does, the actor's observation
 //! normalizer learns every visited observation before the fit; the buffer keeps raw
 //! observations and normalizes them with the statistics of the round's fit, so rows of early
 //! rounds are not fitted through statistics the actor no longer uses. The std is not fitted:
