@@ -13,11 +13,11 @@
 //! states (behaviour cloning), the later ones the states the actor's own mistakes lead to,
 //! labelled with the expert's correction, which plain cloning never sees. The labelled rows
 //! join a buffer of the most recent `buffer_rows`, and the actor's mean is fitted to them by
-//! squared error, `epochs` × `minibatches` Adam steps per round. As PPO's rollout does, the actor's observation
-//! normalizer learns every visited observation before the fit; the buffer keeps raw
-//! observations and normalizes them with the statistics of the round's fit, so rows of early
-//! rounds are not fitted through statistics the actor no longer uses. The std is not fitted:
-//! PPO starts exploring at the config's `init_std`.
+//! squared error, `epochs` × `minibatches` Adam steps per round. As PPO's rollout does, the
+//! actor's observation normalizer learns every visited observation before the fit; the buffer
+//! keeps raw observations and normalizes them with the statistics of the round's fit, so rows
+//! of early rounds are not fitted through statistics the actor no longer uses. The std is not
+//! fitted: PPO starts exploring at the config's `init_std`.
 //!
 //! **Critic warm-up.** A critic at its random initialisation meeting a cloned actor is the
 //! known collapse: its values are noise, so PPO's first advantages are noise too, and the first
