@@ -7,6 +7,8 @@
 //! <run>/return.png, <run>/entropy.png       learning curves
 //! <run>/checkpoints/iter_NNNNNN.safetensors checkpoints (see crate::checkpoint)
 //! <run>/policy.safetensors                  the actor as an onboard policy file
+//! <run>/best_policy.safetensors             --export-best (export_checkpoint)
+//! <run>/policy_iter_NNNNNN.safetensors      --export-iteration N (export_checkpoint)
 //! ```
 
 use std::collections::BTreeMap;
@@ -148,35 +150,56 @@ fn provenance_extra(
 
 /// The policy of a finished run's best evaluated checkpoint.
 #[derive(Debug, Clone)]
-pub struct BestExport {
+pub struct Exported {
     pub policy: PathBuf,
     pub iteration: usize,
-    pub eval_return: f64,
+    /// The checkpoint's evaluation return (`None`: that iteration was not evaluated).
+    pub eval_return: Option<f64>,
 }
 
-/// Exports the checkpoint with the highest deterministic evaluation return of the run in
-/// `run_dir` (trained with `config`) as `<run>/best_policy.safetensors`. PPO's last iterate
-/// is not its best when training oscillates; the evaluation episodes are the same every time,
-/// so their return ranks checkpoints fairly. Records the source commit of the run's own
-/// `policy.safetensors` and `train_compute_s`: rollout and update time up to that iteration
-/// (from `metrics.csv`, evaluations excluded). A run trained on a payload file needs the same
-/// `payload_file` ([`TrainOptions::payload_file`]): its grasp sets the action map.
-pub fn export_best(
+/// Which checkpoint of a run [`export_checkpoint`] exports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Selection {
+    /// The highest deterministic evaluation return of the run: PPO's last iterate is not its
+    /// best when training oscillates, and the evaluation episodes are the same every time, so
+    /// their return ranks checkpoints fairly.
+    BestEvaluation,
+    /// This iteration's checkpoint (iteration 0 of a warm-started run: the cloned expert), for
+    /// a selection by another measure, such as missions flown through the deployed stack.
+    Iteration(usize),
+}
+
+/// Exports the `selection` checkpoint of the run in `run_dir` (trained with `config`) as
+/// `<run>/best_policy.safetensors` (best evaluation) or `<run>/policy_iter_NNNNNN.safetensors`.
+/// Records the source commit of the run's own `policy.safetensors` and `train_compute_s`:
+/// rollout and update time up to that iteration (from `metrics.csv`, evaluations excluded).
+/// A run trained on a payload file needs the same `payload_file`
+/// ([`TrainOptions::payload_file`]): its grasp sets the action map.
+pub fn export_checkpoint(
     config: &TrainConfig,
     run_dir: &Path,
+    selection: Selection,
     payload_file: Option<&Path>,
-) -> Result<BestExport, LearnError> {
+) -> Result<Exported, LearnError> {
     let rows = crate::metrics::read_rows(&run_dir.join("metrics.csv"))?;
-    let best = rows
-        .iter()
-        .filter_map(|r| r.eval_return.map(|e| (r, e)))
-        .filter(|(r, _)| checkpoint_path(run_dir, r.iteration).is_file())
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .ok_or_else(|| LearnError::Checkpoint {
-            path: run_dir.join("checkpoints"),
-            reason: "no evaluated iteration has a checkpoint".into(),
-        })?;
-    let (row, eval_return) = (*best.0, best.1);
+    let (iteration, eval_return) = match selection {
+        Selection::BestEvaluation => rows
+            .iter()
+            .filter_map(|r| r.eval_return.map(|e| (r.iteration, e)))
+            .filter(|(i, _)| checkpoint_path(run_dir, *i).is_file())
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, e)| (i, Some(e)))
+            .ok_or_else(|| LearnError::Checkpoint {
+                path: run_dir.join("checkpoints"),
+                reason: "no evaluated iteration has a checkpoint".into(),
+            })?,
+        Selection::Iteration(i) => (
+            i,
+            rows.iter()
+                .filter(|r| r.iteration == i)
+                .find_map(|r| r.eval_return),
+        ),
+    };
     let env = make_env(config, 1, payload_file)?;
     let policy = ActorCritic::new(
         env.obs_dim(),
@@ -190,26 +213,33 @@ pub fn export_best(
         config.env.steps_per_env,
         env.num_envs(),
     );
-    let ckpt = checkpoint_path(run_dir, row.iteration);
+    let ckpt = checkpoint_path(run_dir, iteration);
     let progress = checkpoint::load(&ckpt, &mut ppo, config.run.task)?;
     let last = Policy::from_file(run_dir.join("policy.safetensors")).ok();
     let commit = last
         .and_then(|p| p.metadata().extra.get("commit").cloned())
         .unwrap_or_else(provenance::commit);
-    let mut extra = provenance_extra(config, commit, progress, Some(eval_return), payload_file)?;
+    let mut extra = provenance_extra(config, commit, progress, eval_return, payload_file)?;
     let (mut compute_s, mut previous) = (0.0, 0);
     for r in &rows {
         let samples = r.env_steps.saturating_sub(previous);
         previous = r.env_steps;
-        if r.iteration <= row.iteration && r.steps_per_s > 0.0 {
+        if r.iteration <= iteration && r.steps_per_s > 0.0 {
             compute_s += samples as f64 / r.steps_per_s;
         }
     }
     extra.insert("train_compute_s".into(), format!("{compute_s:.0}"));
-    extra.insert(
-        "selected".into(),
-        "best evaluation return of the run".into(),
-    );
+    let (selected, file) = match selection {
+        Selection::BestEvaluation => (
+            "best evaluation return of the run".to_string(),
+            "best_policy.safetensors".to_string(),
+        ),
+        Selection::Iteration(i) => (
+            format!("iteration {i}"),
+            format!("policy_iter_{i:06}.safetensors"),
+        ),
+    };
+    extra.insert("selected".into(), selected);
     let (phase, _) = export_identity(config.run.task);
     extra.extend(env.policy_metadata());
     let exported = export_policy(
@@ -219,11 +249,11 @@ pub fn export_best(
         &env.action_offset(),
         extra,
     )?;
-    let path = run_dir.join("best_policy.safetensors");
+    let path = run_dir.join(file);
     exported.write_file(&path)?;
-    Ok(BestExport {
+    Ok(Exported {
         policy: path,
-        iteration: row.iteration,
+        iteration,
         eval_return,
     })
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use moonhaul_core::policy::Policy;
 use moonhaul_learn::config::TrainConfig;
 use moonhaul_learn::metrics::{MetricsRow, HEADER};
-use moonhaul_learn::trainer::{checkpoint_path, train, TrainOptions};
+use moonhaul_learn::trainer::{checkpoint_path, export_checkpoint, train, Selection, TrainOptions};
 
 fn tiny_config() -> TrainConfig {
     let path = concat!(
@@ -156,8 +156,11 @@ fn the_best_evaluated_checkpoint_is_exported_with_its_provenance() {
         .copied()
         .max_by(|a, b| a.1.total_cmp(&b.1))
         .unwrap();
-    let best = moonhaul_learn::trainer::export_best(&config, &run, None).unwrap();
-    assert_eq!((best.iteration, best.eval_return), (iteration, eval_return));
+    let best = export_checkpoint(&config, &run, Selection::BestEvaluation, None).unwrap();
+    assert_eq!(
+        (best.iteration, best.eval_return),
+        (iteration, Some(eval_return))
+    );
     let policy = Policy::from_file(&best.policy).unwrap();
     let extra = &policy.metadata().extra;
     assert_eq!(extra["iteration"], iteration.to_string());
@@ -165,7 +168,28 @@ fn the_best_evaluated_checkpoint_is_exported_with_its_provenance() {
     for key in ["commit", "config_sha256", "train_compute_s", "env_steps"] {
         assert!(extra.contains_key(key), "{key}: {extra:?}");
     }
+    // Any checkpointed iteration, by number, with its own provenance.
+    let last = rows(&run).last().unwrap().iteration;
+    let chosen = export_checkpoint(&config, &run, Selection::Iteration(last), None).unwrap();
+    assert_eq!(chosen.iteration, last);
+    assert!(chosen
+        .policy
+        .ends_with(format!("policy_iter_{last:06}.safetensors")));
+    let policy = Policy::from_file(&chosen.policy).unwrap();
+    assert_eq!(policy.metadata().extra["iteration"], last.to_string());
+    assert_eq!(
+        policy.metadata().extra["selected"],
+        format!("iteration {last}")
+    );
+    // One without a checkpoint is refused, naming the missing file.
+    let missing = export_checkpoint(&config, &run, Selection::Iteration(last + 1), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        missing.contains(&format!("iter_{:06}", last + 1)),
+        "{missing}"
+    );
     // A run without a checkpoint of any evaluated iteration has nothing to export.
     std::fs::remove_dir_all(run.join("checkpoints")).unwrap();
-    assert!(moonhaul_learn::trainer::export_best(&config, &run, None).is_err());
+    assert!(export_checkpoint(&config, &run, Selection::BestEvaluation, None).is_err());
 }

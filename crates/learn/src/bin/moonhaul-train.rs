@@ -27,7 +27,7 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use moonhaul_core::input::{check_readable, MAX_CHECKPOINT_BYTES, MAX_URDF_BYTES};
 use moonhaul_learn::config::TrainConfig;
-use moonhaul_learn::trainer::{default_run_dir, export_best, train, TrainOptions};
+use moonhaul_learn::trainer::{default_run_dir, export_checkpoint, train, Selection, TrainOptions};
 
 /// A `--resume` checkpoint must be a regular file of sane size (not a folder, FIFO or device,
 /// which would block or exhaust memory when read); returns its run folder,
@@ -86,6 +86,11 @@ struct Args {
     /// runs/<run.name>) as best_policy.safetensors.
     #[arg(long, conflicts_with_all = ["resume", "time_limit_s"])]
     export_best: bool,
+    /// Train nothing: export iteration N's checkpoint of the finished run in --out (or
+    /// runs/<run.name>) as policy_iter_NNNNNN.safetensors (0: a warm start's cloned expert),
+    /// to select checkpoints by another measure, such as `moonhaul eval`'s deployed missions.
+    #[arg(long, value_name = "N", conflicts_with_all = ["resume", "time_limit_s", "export_best"])]
+    export_iteration: Option<usize>,
     /// Payload URDF every training world carries, replacing the sim config's payloads (one
     /// link `payload`, one <box> collision, long side along x). Give it again to --resume or
     /// --export-best such a run.
@@ -115,15 +120,24 @@ fn main() -> Result<()> {
             .with_context(|| format!("training config {}", args.config.display()))?,
     };
 
-    if args.export_best {
-        let best = export_best(&config, &run_dir, args.payload.as_deref())
-            .with_context(|| format!("exporting the best checkpoint of {}", run_dir.display()))?;
+    let selection = match (args.export_best, args.export_iteration) {
+        (true, _) => Some(Selection::BestEvaluation),
+        (false, Some(i)) => Some(Selection::Iteration(i)),
+        (false, None) => None,
+    };
+    if let Some(selection) = selection {
+        let exported = export_checkpoint(&config, &run_dir, selection, args.payload.as_deref())
+            .with_context(|| format!("exporting a checkpoint of {}", run_dir.display()))?;
+        let eval = exported
+            .eval_return
+            .map_or("not evaluated".to_string(), |e| {
+                format!("evaluation return {e:.1}")
+            });
         writeln!(
             std::io::stdout().lock(),
-            "best evaluation: iteration {}, return {:.1}\npolicy     {}",
-            best.iteration,
-            best.eval_return,
-            best.policy.display()
+            "iteration {}, {eval}\npolicy     {}",
+            exported.iteration,
+            exported.policy.display()
         )
         .context("cannot write to stdout")?;
         return Ok(());
