@@ -505,22 +505,28 @@ mod tests {
     }
 
     #[test]
-    fn the_warm_variant_is_the_lift_config_with_a_warm_start() {
-        let (lift, mut warm) = (repo_config("lift"), repo_config("lift_warm"));
-        let plan = warm
-            .warm_start
-            .take()
-            .expect("lift_warm has a [warm_start]");
-        // The expert's plan is the shipped mission, resolved against the config's folder.
-        moonhaul_core::scripted::MissionPlan::load(&plan.mission).unwrap();
-        assert_eq!(plan.beta(0), 1.0);
-        assert_eq!(plan.beta(plan.rounds - 1), 0.0);
-        assert!(warm.run.iterations < lift.run.iterations);
-        // PPO explores around the clone, not as widely as from scratch.
-        assert!(warm.policy.init_std < lift.policy.init_std);
-        (warm.run.name, warm.run.iterations) = (lift.run.name.clone(), lift.run.iterations);
-        warm.policy.init_std = lift.policy.init_std;
-        assert_eq!(warm, lift, "lift_warm drifted from configs/train/lift.toml");
+    fn each_warm_variant_is_its_phase_config_with_a_warm_start() {
+        for phase in ["lift", "transport", "place"] {
+            let (scratch, mut warm) = (repo_config(phase), repo_config(&format!("{phase}_warm")));
+            let plan = warm
+                .warm_start
+                .take()
+                .unwrap_or_else(|| panic!("{phase}_warm has no [warm_start]"));
+            // The expert's plan is the shipped mission, resolved against the config's folder.
+            moonhaul_core::scripted::MissionPlan::load(&plan.mission).unwrap();
+            assert_eq!(plan.beta(0), 1.0, "{phase}");
+            assert_eq!(plan.beta(plan.rounds - 1), 0.0, "{phase}");
+            assert!(warm.run.iterations < scratch.run.iterations, "{phase}");
+            // PPO explores around the clone, not as widely as from scratch.
+            assert!(warm.policy.init_std < scratch.policy.init_std, "{phase}");
+            (warm.run.name, warm.run.iterations) =
+                (scratch.run.name.clone(), scratch.run.iterations);
+            warm.policy.init_std = scratch.policy.init_std;
+            assert_eq!(
+                warm, scratch,
+                "{phase}_warm drifted from configs/train/{phase}.toml"
+            );
+        }
     }
 
     #[test]
@@ -541,7 +547,7 @@ mod tests {
         let betas: Vec<f64> = (0..6).map(|k| warm.beta(k)).collect();
         assert!(close(&betas, &[0.9, 0.6, 0.3, 0.0, 0.0, 0.0]), "{betas:?}");
         (warm.rounds, warm.student_rounds) = (1, 0);
-        assert_eq!(warm.beta(0), 0.8, "a single round keeps beta_start");
+        assert_eq!(warm.beta(0), 0.9, "a single round keeps beta_start");
     }
 
     #[test]
