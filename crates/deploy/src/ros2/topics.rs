@@ -1,5 +1,5 @@
-//! What a unit shows the ROS 2 graph, built from its tick records: the messages of its bag
-//! ([`super::bag`]).
+//! What a unit shows the ROS 2 graph, built from its tick records: the same messages whether
+//! they go out live ([`super::live`]) or into a bag ([`super::bag`]).
 //!
 //! Per unit, under its namespace `ns` (default `unit_<index>`):
 //!
