@@ -874,7 +874,7 @@ impl TickRecord {
         self.issued = *issued;
         self.peer_age_us.clone_from(peer_age_us);
         self.fault.clone_from(fault);
-        self.rejected = rejected.clone();
+        self.rejected = *rejected;
         self.deadline_misses = *deadline_misses;
         self.work_us = *work_us;
     }

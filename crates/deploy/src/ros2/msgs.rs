@@ -181,7 +181,7 @@ impl RosType {
     pub fn definition(&self) -> String {
         let mut text = self.fields.to_owned();
         for t in self.refers_to {
-            text.push_str("\n");
+            text.push('\n');
             text.push_str(&"=".repeat(80));
             text.push_str("\nMSG: ");
             text.push_str(t.name);
