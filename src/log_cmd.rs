@@ -116,11 +116,26 @@ pub enum LogCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Mission logs as ROS 2 (Jazzy) rosbag2 bags with MCAP storage: per unit
+    /// /<ns>/joint_states, /tf, /tf_static, /<ns>/robot_description, /diagnostics, and the
+    /// world's /ground_truth/payload; for `ros2 bag play`, RViz, PlotJuggler.
+    Ros2 {
+        /// A mission directory (one bag per trial, at BAG/<payload>/trial-<k>/), one trial's
+        /// folder, or one unit or world log (.mcap).
+        input: PathBuf,
+        /// The bag folder to write (must not exist unless --force).
+        #[arg(long, value_name = "BAG")]
+        out: PathBuf,
+        /// Replace an existing BAG (never one that holds the input).
+        #[arg(long)]
+        force: bool,
+    },
 }
 
 pub fn run(cmd: LogCommand) -> Result<()> {
     match cmd {
         LogCommand::Summary { dir, json } => summarize(&dir, json),
+        LogCommand::Ros2 { input, out, force } => crate::log_ros2::export(&input, &out, force),
     }
 }
 
@@ -205,16 +220,17 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
 }
 
 /// One trial's world log.
-struct TrialDir {
-    payload: String,
-    trial: u32,
-    log: PathBuf,
+pub(crate) struct TrialDir {
+    pub(crate) payload: String,
+    pub(crate) trial: u32,
+    /// The trial's `world.mcap`.
+    pub(crate) log: PathBuf,
 }
 
 /// The trials of `dir` in payload order (sledge, box, bricks as in the paper, then others by
 /// name) and trial number. Folders starting with `.` are skipped; every other folder is a
 /// payload and must hold `trial-<k>` folders, each with its `world.mcap`.
-fn find_trials(dir: &Path) -> Result<Vec<TrialDir>> {
+pub(crate) fn find_trials(dir: &Path) -> Result<Vec<TrialDir>> {
     let subdirs = |path: &Path| -> Result<Vec<(String, PathBuf)>> {
         let mut out = Vec::new();
         let entries = std::fs::read_dir(path)
@@ -481,7 +497,7 @@ fn samples(frames: &[WorldFrame]) -> Result<(Vec<Sample>, Vec<String>)> {
 
 /// Why `f` cannot be a frame of a mission of `team` units (the log's first frame's), naming
 /// the field; `Ok` when every value is one a world can log.
-fn check_frame(f: &WorldFrame, team: usize) -> Result<(), String> {
+pub(crate) fn check_frame(f: &WorldFrame, team: usize) -> Result<(), String> {
     if !(1..=MAX_KEY_FILE_UNITS).contains(&team) {
         return Err(format!(
             "the log's team has {team} units (a team has 1 to {MAX_KEY_FILE_UNITS})"
@@ -890,7 +906,7 @@ fn strangers(folder: &Path, team: usize) -> Vec<String> {
 /// Why `records` cannot be unit `unit`'s log, naming the record and field: a record of
 /// another unit, a t_max outside [0, 1], a tracking d that is negative or not finite, ticks
 /// that do not advance or a clock that runs backwards.
-fn check_ticks(unit: usize, records: &[TickRecord]) -> Result<(), String> {
+pub(crate) fn check_ticks(unit: usize, records: &[TickRecord]) -> Result<(), String> {
     let mut last: Option<&TickRecord> = None;
     for (k, r) in records.iter().enumerate() {
         let problem = if r.unit != unit {

@@ -17,6 +17,7 @@ mod eval_cmd;
 mod handover_cmd;
 mod keys_cmd;
 mod log_cmd;
+mod log_ros2;
 mod mission;
 mod payload_arg;
 mod policy_cmd;
@@ -55,7 +56,8 @@ enum Command {
     /// Evaluate the phase policies against the paper's simulation results, beside the scripted
     /// IK controller: seeded, randomized episodes of every case and payload.
     Eval(eval_cmd::EvalArgs),
-    /// Mission logs: the paper's hardware metrics of a mission directory's ground truth.
+    /// Mission logs: the paper's hardware metrics of a mission directory's ground truth; logs
+    /// as ROS 2 bags.
     #[command(subcommand)]
     Log(log_cmd::LogCommand),
     /// Team key files that authenticate peer and operator messages: generate one per team (mode

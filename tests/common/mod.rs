@@ -160,3 +160,32 @@ impl Daemon {
         }
     }
 }
+
+/// The Python with the pinned ROS 2 tooling (`rosbags`, `eclipse-zenoh`) that `cargo xtask
+/// test` installs and names in `MOONHAUL_ROS2_PYTHON`. Under xtask (`MOONHAUL_XTASK_TEST`
+/// set) a missing one fails the test; under plain `cargo test` the test is skipped, saying
+/// why (`None`).
+pub fn ros2_python(test: &str) -> Option<PathBuf> {
+    match std::env::var_os("MOONHAUL_ROS2_PYTHON") {
+        Some(python) => {
+            let python = PathBuf::from(python);
+            assert!(
+                python.is_file(),
+                "MOONHAUL_ROS2_PYTHON={} is not a file",
+                python.display()
+            );
+            Some(python)
+        }
+        None if std::env::var_os("MOONHAUL_XTASK_TEST").is_some() => panic!(
+            "{test}: MOONHAUL_ROS2_PYTHON is not set, but cargo xtask test sets it to the \
+             venv it prepares with rosbags and eclipse-zenoh"
+        ),
+        None => {
+            eprintln!(
+                "SKIPPED {test}: needs MOONHAUL_ROS2_PYTHON, a python with the pinned rosbags and \
+                 eclipse-zenoh; `cargo xtask test` installs them and sets it"
+            );
+            None
+        }
+    }
+}

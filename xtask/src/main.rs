@@ -14,7 +14,9 @@
 //! `LIBTORCH_USE_PYTORCH=1` and the venv's `python`; `moonhaul-learn`'s build script embeds its
 //! library directory as an rpath, so nothing needs `LD_LIBRARY_PATH`.
 //!
-//! `MOONHAUL_VENV` overrides the venv location (CI keeps one outside the clone).
+//! `MOONHAUL_VENV` overrides the venv location (CI keeps one outside the clone). The tests also
+//! get a small second venv with the pinned ROS 2 tooling (`rosbags`, `eclipse-zenoh`; a few MB),
+//! `MOONHAUL_ROS2_VENV` or `.venv-ros2/`, whose python they find in `MOONHAUL_ROS2_PYTHON`.
 
 use std::env;
 use std::ffi::OsString;
@@ -26,6 +28,11 @@ mod vendor_check;
 
 /// The PyTorch release `tch` 0.26 is built against.
 const TORCH_VERSION: &str = "2.13.0";
+
+/// The ROS 2 tooling the tests check moonhaul's bags and live topics with, pure Python (no ROS
+/// install): rosbags (rosbag2 reader, CDR codec, Jazzy type store) and zenoh's Python API at
+/// the zenoh release moonhaul links.
+const ROS2_TEST_PACKAGES: [&str; 2] = ["rosbags==0.11.9", "eclipse-zenoh==1.10.2"];
 
 const USAGE: &str =
     "usage: cargo xtask <demo|test|setup|train-all|bench|vendor-check|cargo ARGS...>
@@ -156,19 +163,28 @@ fn cargo(venv: &Path, args: &[String]) -> Result<(), String> {
     run(cargo_command(venv).args(args))
 }
 
+/// Creates the ROS 2 tooling venv unless a previous run completed it; returns its python.
+fn setup_ros2() -> Result<PathBuf, String> {
+    let venv = env::var_os("MOONHAUL_ROS2_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join(".venv-ros2"));
+    ensure_venv(&venv, &ROS2_TEST_PACKAGES, ".moonhaul-ros2")?;
+    Ok(venv.join("bin").join("python"))
+}
+
 fn test(extra: &[String]) -> Result<(), String> {
     let venv = setup()?;
+    let ros2_python = setup_ros2()?;
     stage(
         "building and running every test of the workspace (the first build compiles the \
          whole workspace with libtorch: 10-20 min on 2 cores, much less after)",
         || {
-            cargo(
-                &venv,
-                &["test".into(), "--workspace".into()]
-                    .into_iter()
-                    .chain(extra.iter().cloned())
-                    .collect::<Vec<_>>(),
-            )
+            // The ROS 2 tests fail, not skip, without their python under xtask.
+            run(cargo_command(&venv)
+                .env("MOONHAUL_ROS2_PYTHON", &ros2_python)
+                .env("MOONHAUL_XTASK_TEST", "1")
+                .args(["test", "--workspace"])
+                .args(extra))
         },
     )
 }

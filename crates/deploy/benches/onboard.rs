@@ -8,7 +8,11 @@
 //!   there and answered with its own sealed frame;
 //! - **halt latency**: two units ticking at 50 Hz on the wall clock over zenoh; at a random
 //!   moment one dies (stops ticking and publishing); the time from its last message to the
-//!   survivor's first held tick, over many trials.
+//!   survivor's first held tick, over many trials;
+//! - **tick with ROS 2 on and off** (`--ros2-ticks N`): unit 0's tick plus its hand-over to the
+//!   live ROS 2 publisher, at 50 Hz on the wall clock, with publishing switched on and off in
+//!   alternating blocks of 100 ticks in one run; the publisher sends to a zenoh peer on
+//!   loopback that receives every sample.
 //!
 //! Percentiles are of the measured samples (nearest rank).
 
@@ -372,6 +376,87 @@ fn admission_cost(frames: usize) {
     );
 }
 
+/// Unit 0's tick at 50 Hz with its record offered to a live ROS 2 publisher in every other
+/// block of 100 ticks (and not in the others), for `ticks` ticks; p50 and p99 of each.
+async fn ros2_tick(ticks: usize) {
+    use moonhaul_deploy::ros2::live::{LiveSettings, Ros2Publisher};
+    const BLOCK: usize = 100;
+    let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
+    let port = network::free_loopback_port().unwrap();
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"peer\"").unwrap();
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    config
+        .insert_json5("listen/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
+        .unwrap();
+    let ros_side = zenoh::open(config).await.unwrap();
+    let received = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let count = received.clone();
+    let _sub = ros_side
+        .declare_subscriber("0/**")
+        .callback(move |_| {
+            count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        })
+        .await
+        .unwrap();
+    let urdf = std::fs::read_to_string(repo_file("assets/unit.urdf")).unwrap();
+    let publisher = Ros2Publisher::start(
+        &LiveSettings {
+            domain_id: 0,
+            namespace: "unit_0".into(),
+            connect: vec![format!("tcp/127.0.0.1:{port}")],
+        },
+        &urdf,
+        2,
+    )
+    .await
+    .unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let boot = wall_us();
+    let mut units = [unit(0, &keys, boot), unit(1, &keys, boot)];
+    let (mut on, mut off) = (Vec::new(), Vec::new());
+    let mut interval = tokio::time::interval(Duration::from_micros(PERIOD_US));
+    for k in 0..ticks {
+        interval.tick().await;
+        let now = wall_us();
+        let frames = [units[0].frame.clone(), units[1].frame.clone()];
+        let start = start_frame(&keys, now);
+        let mut inbox0: Vec<&[u8]> = vec![&frames[1]];
+        let mut inbox1: Vec<&[u8]> = vec![&frames[0]];
+        if k == 5 {
+            inbox0.push(&start);
+            inbox1.push(&start);
+        }
+        let publishing = (k / BLOCK) % 2 == 1;
+        let t0 = Instant::now();
+        units[0].tick(now, &inbox0);
+        if publishing {
+            publisher.offer(&units[0].record);
+        }
+        let us = t0.elapsed().as_secs_f64() * 1e6;
+        if publishing {
+            on.push(us)
+        } else {
+            off.push(us)
+        }
+        units[1].tick(now, &inbox1);
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (dropped, failed) = publisher.counts();
+    publisher.close().await;
+    let _ = ros_side.close().await;
+    println!(
+        "ROS 2 publishing, alternating blocks of {BLOCK} ticks at 50 Hz: {} samples received \
+         on the ROS side ({} records offered, {dropped} dropped, {failed} samples failed)",
+        received.load(std::sync::atomic::Ordering::Relaxed),
+        on.len()
+    );
+    percentiles("tick with ROS 2 off", "us", &mut off);
+    percentiles("tick with ROS 2 on (incl. the hand-over)", "us", &mut on);
+}
+
 fn arg(name: &str, default: usize) -> usize {
     let args: Vec<String> = std::env::args().collect();
     args.iter()
@@ -391,5 +476,6 @@ fn main() {
     rt.block_on(async {
         peer_round_trip(pings).await;
         halt_latency(trials).await;
+        ros2_tick(arg("--ros2-ticks", 3000)).await;
     });
 }

@@ -21,6 +21,7 @@ use moonhaul_coord::message::{
     Body, FaultKind, MessageBounds, RejectCounts, Sender, ARENA_HALF_WIDTH_M,
 };
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
+use moonhaul_core::input::{read_capped_text, MAX_URDF_BYTES};
 use moonhaul_core::state::PlanarPose;
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_core::unit::UnitSpec;
@@ -37,6 +38,8 @@ use crate::cli_support::{load_policies, wall_us, Signals};
 use crate::mission_log::{LogInputs, UnitLog};
 use crate::network::{self, Access, FrameQueue, Keys, Outbox, QueueCounts, Role};
 use crate::record::TickRecord;
+use crate::ros2::live::{LiveSettings, Ros2Publisher};
+use crate::ros2::topics::default_namespace;
 use crate::sim_link::{self, SimHardware, SimSensed};
 use crate::tick::{Controller, Onboard, OnboardSettings};
 use crate::unit_config::{check_endpoint, UnitConfig};
@@ -171,6 +174,11 @@ pub struct DaemonArgs {
     /// Overrides the config's zenoh endpoints to listen on (repeatable).
     #[arg(long, value_name = "ENDPOINT")]
     pub listen: Vec<String>,
+    /// Publish the read-only ROS 2 topics (rmw_zenoh's wire format) on a session of their own
+    /// to this endpoint, e.g. rmw_zenoh's router `tcp/localhost:7447` (repeatable; overrides
+    /// `[ros2] endpoints` and turns `[ros2]` on).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub ros2_connect: Vec<String>,
     /// Write the mission log (MCAP) here: never over one of the run's inputs (config, keys,
     /// policies, …), and over another existing file only with `--force`.
     #[arg(long, value_name = "FILE")]
@@ -351,6 +359,15 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
                 .map_err(|reason| anyhow::anyhow!("{flag} {endpoint:?}: {reason}"))?;
         }
     }
+    let mut ros2 = config.ros2.clone();
+    if !args.ros2_connect.is_empty() {
+        ros2.enabled = true;
+        ros2.endpoints = args.ros2_connect.clone();
+        for endpoint in &ros2.endpoints {
+            check_endpoint(endpoint, false)
+                .map_err(|reason| anyhow::anyhow!("--ros2-connect {endpoint:?}: {reason}"))?;
+        }
+    }
     if config.team_size > 1 && net.connect.is_empty() && net.listen.is_empty() {
         bail!(
             "{}: [network] connect and listen are empty and no --connect or --listen was given: \
@@ -424,6 +441,27 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         args.hal,
     )
     .await?;
+
+    // Read-only ROS 2 topics, on a session of their own (never the team's).
+    let ros2 = match ros2.enabled {
+        true => {
+            let urdf = read_capped_text(&config.urdf, MAX_URDF_BYTES)?;
+            let live = LiveSettings {
+                domain_id: ros2.domain_id,
+                namespace: ros2
+                    .namespace
+                    .clone()
+                    .unwrap_or_else(|| default_namespace(unit)),
+                connect: ros2.endpoints.clone(),
+            };
+            let publisher = Ros2Publisher::start(&live, &urdf, settings.team_size)
+                .await
+                .context("starting the ROS 2 topics")?;
+            info!(unit, namespace = %live.namespace, domain = live.domain_id, endpoints = ?live.connect, "ROS 2 topics up");
+            Some(publisher)
+        }
+        false => None,
+    };
 
     hardware
         .unit()
@@ -597,6 +635,9 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
                 warn!(unit, error = %e, "mission log write failed");
             }
         }
+        if let Some(ros2) = &ros2 {
+            ros2.offer(&record);
+        }
     };
     info!(
         unit,
@@ -629,6 +670,14 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
     }
     if let Some(log) = log {
         log.finish().context("finishing the mission log")?;
+    }
+    if let Some(ros2) = ros2 {
+        let (dropped, failed) = ros2.counts();
+        info!(
+            unit,
+            dropped, failed, "ROS 2 totals: ticks not published, samples not sent"
+        );
+        ros2.close().await;
     }
     let _ = session.close().await;
     info!(unit, "unit daemon down");

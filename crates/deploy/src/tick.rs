@@ -824,4 +824,58 @@ impl TickRecord {
             work_us: 0,
         }
     }
+
+    /// Makes this record a copy of `other`, reusing its buffers: a copy without allocating
+    /// once the team's vectors have their size (every field is named, so a new one is not
+    /// forgotten).
+    pub fn copy_from(&mut self, other: &TickRecord) {
+        let TickRecord {
+            unit,
+            tick,
+            stamp_us,
+            phase,
+            hold,
+            t_max,
+            distance,
+            tracking_d,
+            sensed,
+            payload_height_estimate_m,
+            press_m,
+            goal_distance_m,
+            team_sensed,
+            team_previous,
+            grasp_force_n,
+            grasp_open,
+            target,
+            issued,
+            peer_age_us,
+            fault,
+            rejected,
+            deadline_misses,
+            work_us,
+        } = other;
+        self.unit = *unit;
+        self.tick = *tick;
+        self.stamp_us = *stamp_us;
+        self.phase = *phase;
+        self.hold = *hold;
+        self.t_max = *t_max;
+        self.distance = *distance;
+        self.tracking_d = *tracking_d;
+        self.sensed = *sensed;
+        self.payload_height_estimate_m = *payload_height_estimate_m;
+        self.press_m = *press_m;
+        self.goal_distance_m = *goal_distance_m;
+        self.team_sensed.clone_from(team_sensed);
+        self.team_previous.clone_from(team_previous);
+        self.grasp_force_n = *grasp_force_n;
+        self.grasp_open = *grasp_open;
+        self.target = *target;
+        self.issued = *issued;
+        self.peer_age_us.clone_from(peer_age_us);
+        self.fault.clone_from(fault);
+        self.rejected = *rejected;
+        self.deadline_misses = *deadline_misses;
+        self.work_us = *work_us;
+    }
 }

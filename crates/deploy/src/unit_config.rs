@@ -53,7 +53,39 @@ pub struct UnitConfig {
     pub mock: MockSettings,
     /// The CAN backend's drive settings (`--hal can`), e.g. `unit_can.toml`.
     pub can: PathBuf,
+    /// Read-only ROS 2 topics (`[ros2]`); off when the section is absent.
+    #[serde(default)]
+    pub ros2: Ros2Config,
 }
+
+/// `[ros2]` of the unit config: the unit's read-only topics in rmw_zenoh's wire format, on a
+/// zenoh session of their own (`moonhaul_deploy::ros2::live`).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ros2Config {
+    /// Publish (default false; `--ros2-connect` turns it on).
+    pub enabled: bool,
+    /// `ROS_DOMAIN_ID` (default 0; 0 to 232, as ROS 2 allows).
+    pub domain_id: u32,
+    /// The unit's namespace (default `unit_<unit_index>`).
+    pub namespace: Option<String>,
+    /// Zenoh endpoints to connect to (default rmw_zenoh's router, `tcp/localhost:7447`).
+    pub endpoints: Vec<String>,
+}
+
+impl Default for Ros2Config {
+    fn default() -> Self {
+        Ros2Config {
+            enabled: false,
+            domain_id: 0,
+            namespace: None,
+            endpoints: vec!["tcp/localhost:7447".to_owned()],
+        }
+    }
+}
+
+/// The largest `ROS_DOMAIN_ID` ROS 2 allows.
+pub const MAX_ROS_DOMAIN_ID: u32 = 232;
 
 /// The largest grasp load the mock reports, N: an arm's share of a 100 kg payload, ten times
 /// the heaviest the units carry.
@@ -161,9 +193,16 @@ impl Validate for UnitConfig {
         if !mock.arm_start_rad.iter().all(|v| v.is_finite()) {
             return Err(FieldError::new("mock.arm_start_rad", "must be finite"));
         }
+        count(
+            "ros2.domain_id",
+            self.ros2.domain_id.into(),
+            0,
+            MAX_ROS_DOMAIN_ID.into(),
+        )?;
         for (list, listen, name) in [
             (&self.network.connect, false, "network.connect"),
             (&self.network.listen, true, "network.listen"),
+            (&self.ros2.endpoints, false, "ros2.endpoints"),
         ] {
             for (i, endpoint) in list.iter().enumerate() {
                 check_endpoint(endpoint, listen).map_err(|reason| {

@@ -59,6 +59,7 @@ use std::time::Duration;
 
 pub use error::LogError;
 pub use inputs::LogInputs;
+pub(crate) use links::UnitLinks;
 pub use read::{
     read_attachments, read_unit_log, read_unit_log_contents, read_world_log,
     read_world_log_contents, LogContents, LogEnd,
