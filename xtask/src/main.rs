@@ -3,7 +3,7 @@
 //! - `cargo xtask demo`  — the main job.
 //! - `cargo xtask test`  — every test in the workspace.
 //! - `cargo xtask setup` — only the set-up both of them do first.
-//! - `cargo xtask train-all` — retrain the bundled phase policies from scratch.
+//! - `cargo xtask train-all` — retrain the bundled phase policies (the expert's clones).
 //! - `cargo xtask bench [ARGS…]` — moonhaul beside MuJoCo and rsl_rl, alternating, as ratios.
 //! - `cargo xtask cargo ARGS…` — any cargo command with libtorch configured (clippy, bench, run).
 //! - `cargo xtask vendor-check` — `vendor/*` are their crates.io releases plus `moonhaul.patch`
@@ -42,10 +42,11 @@ const USAGE: &str =
                 bring up a unit's CAN drives (emulated); see runs/demo/
   test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
   setup         only install libtorch (PyTorch from PyPI) into the project venv
-  train-all     retrain the bundled policies from scratch: capture the scripted expert's
-                hand-overs (runs/handovers/scripted.json), train lift, transport and place
-                with configs/train/<phase>.toml into runs/<phase>/, then copy each policy
-                and its training curve to assets/policies/
+  train-all     retrain the bundled policies: capture the scripted expert's hand-overs
+                (runs/handovers/scripted.json), clone the expert into lift, transport and
+                place with configs/train/<phase>_warm.toml's warm start (no PPO) into
+                runs/<phase>-warm/, then copy each policy and its training curve to
+                assets/policies/, printing each phase's wall time
   bench [ARGS]  the side-by-side benchmark: the simulator against MuJoCo and the PPO update
                 and act against rsl_rl 5.5.1, alternating, printing the ratios (installs
                 mujoco and rsl_rl into a separate venv, MOONHAUL_BENCH_VENV or .venv-bench;
@@ -292,10 +293,10 @@ fn demo() -> Result<(), String> {
 /// The phases whose policies are bundled in `assets/policies/`.
 const PHASES: [&str; 3] = ["lift", "transport", "place"];
 
-/// Trains every phase policy from its config, one after another (each uses every core), and
-/// bundles the results: `assets/policies/<phase>.safetensors`, the run's best evaluated
-/// checkpoint (with its provenance in the metadata), and `<phase>.metrics.csv` (its training
-/// curve, for `moonhaul eval`'s plots).
+/// Warm-starts every phase policy from the scripted expert with its `<phase>_warm.toml`, one
+/// after another (each uses every core), and bundles the results:
+/// `assets/policies/<phase>.safetensors`, the cloned expert (with its provenance in the
+/// metadata), and `<phase>.metrics.csv` (its training curve, for `moonhaul eval`'s plots).
 fn train_all() -> Result<(), String> {
     let venv = setup()?;
     let root = workspace_root();
@@ -328,8 +329,9 @@ fn train_all() -> Result<(), String> {
     std::fs::create_dir_all(&assets)
         .map_err(|e| format!("cannot create {}: {e}", assets.display()))?;
     for phase in PHASES {
-        let out = root.join("runs").join(phase);
-        let config = format!("configs/train/{phase}.toml");
+        let started = Instant::now();
+        let out = root.join("runs").join(format!("{phase}-warm"));
+        let config = format!("configs/train/{phase}_warm.toml");
         let out_arg = out.to_string_lossy().into_owned();
         let train = |extra: &[&str]| {
             let mut args = vec![
@@ -349,18 +351,23 @@ fn train_all() -> Result<(), String> {
             args.extend_from_slice(extra);
             run(cargo_command(&venv).args(args))
         };
-        train(&[])?;
-        // PPO's last iterate is not always its best: bundle the best evaluated checkpoint.
-        train(&["--export-best"])?;
+        // The cloned expert: DAgger and the critic's warm-up, no PPO. PPO from the clone has
+        // not yet flown more missions through the deployed stack than the clone itself
+        // (docs/measurements/2026-12-04.md), so the bundle is the clone.
+        train(&["--iterations", "0"])?;
         for (from, to) in [
-            ("best_policy.safetensors", format!("{phase}.safetensors")),
+            ("policy.safetensors", format!("{phase}.safetensors")),
             ("metrics.csv", format!("{phase}.metrics.csv")),
         ] {
             let (from, to) = (out.join(from), assets.join(to));
             std::fs::copy(&from, &to)
                 .map_err(|e| format!("cannot copy {} to {}: {e}", from.display(), to.display()))?;
         }
-        eprintln!("xtask: {phase} policy bundled in {}", assets.display());
+        eprintln!(
+            "xtask: {phase} policy bundled in {} ({:.0} min)",
+            assets.display(),
+            started.elapsed().as_secs_f64() / 60.0
+        );
     }
     Ok(())
 }

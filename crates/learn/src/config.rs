@@ -95,7 +95,8 @@ pub struct RunConfig {
     pub task: Task,
     /// Seeds libtorch and the environments; with a fixed `threads` the run is reproducible.
     pub seed: u64,
-    /// PPO iterations (rollout + update) in total, including resumed ones.
+    /// PPO iterations (rollout + update) in total, including resumed ones; 0 with a
+    /// `[warm_start]` runs the warm start alone.
     pub iterations: usize,
     /// libtorch intra-op threads, kept explicit so training does not fight the simulator.
     pub threads: usize,
@@ -277,7 +278,9 @@ impl Validate for TrainConfig {
                     ),
                 ));
             }
-            count("iterations", run.iterations as u64, 1, 1_000_000)?;
+            // 0: the warm start alone (its cloned expert is the run's policy).
+            let least = u64::from(self.warm_start.is_none());
+            count("iterations", run.iterations as u64, least, 1_000_000)?;
             count("threads", run.threads as u64, 1, 256)?;
             count(
                 "checkpoint_interval",
@@ -519,14 +522,43 @@ mod tests {
             assert!(warm.run.iterations < scratch.run.iterations, "{phase}");
             // PPO explores around the clone, not as widely as from scratch.
             assert!(warm.policy.init_std < scratch.policy.init_std, "{phase}");
-            (warm.run.name, warm.run.iterations) =
-                (scratch.run.name.clone(), scratch.run.iterations);
+            // Fewer worlds: a DAgger round's rollout costs worlds x steps.
+            assert!(warm.env.num_envs <= scratch.env.num_envs, "{phase}");
+            (warm.run.name, warm.run.iterations, warm.env.num_envs) = (
+                scratch.run.name.clone(),
+                scratch.run.iterations,
+                scratch.env.num_envs,
+            );
             warm.policy.init_std = scratch.policy.init_std;
             assert_eq!(
                 warm, scratch,
                 "{phase}_warm drifted from configs/train/{phase}.toml"
             );
         }
+    }
+
+    #[test]
+    fn zero_iterations_is_the_warm_start_alone() {
+        let zero = |name: &str| {
+            let text = repo_config(name).to_toml();
+            let edited = text.replacen(
+                &format!("iterations = {}", repo_config(name).run.iterations),
+                "iterations = 0",
+                1,
+            );
+            assert_ne!(edited, text);
+            let path = std::env::temp_dir().join(format!(
+                "moonhaul-zero-iterations-{name}-{}.toml",
+                std::process::id()
+            ));
+            std::fs::write(&path, edited).unwrap();
+            let loaded = TrainConfig::load(&path);
+            std::fs::remove_file(&path).unwrap();
+            loaded
+        };
+        assert_eq!(zero("lift_warm").unwrap().run.iterations, 0);
+        let refused = zero("lift").unwrap_err().to_string();
+        assert!(refused.contains("run.iterations"), "{refused}");
     }
 
     #[test]

@@ -43,6 +43,8 @@ fn tiny_config(dir: &std::path::Path) -> TrainConfig {
     config.run.eval_episodes = 2;
     let warm = config.warm_start.as_mut().unwrap();
     warm.rounds = ROUNDS;
+    // β falls over all three rounds: 1, 0.5, 0.
+    warm.student_rounds = 0;
     warm.steps_per_round = EPISODE_STEPS;
     warm.epochs = 10;
     warm.minibatches = 4;
@@ -196,4 +198,28 @@ fn dagger_learns_the_expert_then_ppo_continues_from_it() {
         &rows[..ROUNDS + CRITIC_ITERATIONS]
     );
     assert_eq!(all.len(), ROUNDS + CRITIC_ITERATIONS + 2);
+}
+
+#[test]
+fn zero_iterations_export_the_clone_without_ppo() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = tiny_config(dir.path());
+    config.run.iterations = 0;
+    let run = dir.path().join("run");
+    let options = TrainOptions {
+        run_dir: run.clone(),
+        resume: None,
+        stop: Arc::new(AtomicBool::new(false)),
+        payload_file: None,
+    };
+    let mut rows: Vec<MetricsRow> = Vec::new();
+    let summary = train(&config, &options, |row| rows.push(*row)).unwrap();
+    assert_eq!(rows.len(), ROUNDS + CRITIC_ITERATIONS, "{rows:#?}");
+    assert!(rows.iter().all(|r| r.iteration == 0 && r.kl.is_none()));
+    assert_eq!(summary.progress.iteration, 0);
+    assert!(checkpoint_path(&run, 0).is_file());
+    assert!(!checkpoint_path(&run, 1).exists());
+    let policy = Policy::from_file(&summary.policy).unwrap();
+    assert_eq!(policy.metadata().extra["iteration"], "0");
+    check_layout(&policy.metadata().extra).unwrap();
 }

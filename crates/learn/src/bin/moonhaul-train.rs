@@ -75,6 +75,10 @@ struct Args {
     /// Overrides `run.seed`.
     #[arg(long)]
     seed: Option<u64>,
+    /// Overrides `run.iterations`; 0 runs a config's `[warm_start]` alone, its cloned expert
+    /// exported as the run's policy.
+    #[arg(long, value_name = "N")]
+    iterations: Option<usize>,
     /// Continue from this checkpoint (`<run>/checkpoints/iter_NNNNNN.safetensors`).
     #[arg(long)]
     resume: Option<PathBuf>,
@@ -104,6 +108,15 @@ fn main() -> Result<()> {
         .with_context(|| format!("loading training config {}", args.config.display()))?;
     if let Some(seed) = args.seed {
         config.run.seed = seed;
+    }
+    if let Some(iterations) = args.iterations {
+        if iterations == 0 && config.warm_start.is_none() {
+            bail!(
+                "--iterations 0 runs the warm start alone, and {} has no [warm_start]",
+                args.config.display()
+            );
+        }
+        config.run.iterations = iterations;
     }
     let resume_dir = args.resume.as_deref().map(check_resume).transpose()?;
     // Before the run folder exists; the sim checks the payload convention itself.
