@@ -53,6 +53,16 @@ fn tiny_config(dir: &std::path::Path) -> TrainConfig {
     config
 }
 
+/// A new run in `run`, not resumed, on the config's payloads.
+fn fresh_run(run: &std::path::Path) -> TrainOptions {
+    TrainOptions {
+        run_dir: run.to_path_buf(),
+        resume: None,
+        stop: Arc::new(AtomicBool::new(false)),
+        payload_file: None,
+    }
+}
+
 /// The first rounds of a longer DAgger schedule, where the expert still drives most rows: the
 /// learning signal. Each round's fit reaches a lower behaviour-cloning loss than the round
 /// before, and the actor agrees with the expert on more of the states it visits, although
@@ -106,12 +116,7 @@ fn dagger_learns_the_expert_then_ppo_continues_from_it() {
     let dir = tempfile::tempdir().unwrap();
     let config = tiny_config(dir.path());
     let run = dir.path().join("run");
-    let options = TrainOptions {
-        run_dir: run.clone(),
-        resume: None,
-        stop: Arc::new(AtomicBool::new(false)),
-        payload_file: None,
-    };
+    let options = fresh_run(&run);
     let mut rows: Vec<MetricsRow> = Vec::new();
     let summary = train(&config, &options, |row| rows.push(*row)).unwrap();
     for r in &rows {
@@ -206,12 +211,7 @@ fn zero_iterations_export_the_clone_without_ppo() {
     let mut config = tiny_config(dir.path());
     config.run.iterations = 0;
     let run = dir.path().join("run");
-    let options = TrainOptions {
-        run_dir: run.clone(),
-        resume: None,
-        stop: Arc::new(AtomicBool::new(false)),
-        payload_file: None,
-    };
+    let options = fresh_run(&run);
     let mut rows: Vec<MetricsRow> = Vec::new();
     let summary = train(&config, &options, |row| rows.push(*row)).unwrap();
     assert_eq!(rows.len(), ROUNDS + CRITIC_ITERATIONS, "{rows:#?}");
