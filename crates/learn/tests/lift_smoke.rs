@@ -1,7 +1,13 @@
 //! CI-sized lift training: a few iterations on a few worlds of the real lift task (domain
-//! randomization on, the shipped reward and PPO settings) raise the deterministic evaluation
-//! return on the same evaluation episodes, and the exported policy carries the observation
-//! layout and its provenance. Not a full training (see `cargo xtask train-all`).
+//! randomization on, the shipped reward and PPO settings) through the action pipeline: the
+//! critic learns to predict the task's returns, and the exported policy carries the
+//! observation layout and its provenance. Not a full training (see `cargo xtask train-all`).
+//!
+//! The learning signal asserted is the critic's, not the evaluation return's: over 40
+//! iterations of 32 worlds the deterministic evaluation return of this task is noise
+//! (measured every 5 iterations: −55.7k, −55.6k, −60.6k, −45.9k, −50.5k, −78.6k, −53.7k,
+//! −50.8k), and a test comparing two of its samples passed or failed by chance. The actor's
+//! learning signal is `pendulum_gymnasium.rs`'s and `warm_start.rs`'s.
 
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -59,7 +65,15 @@ fn a_few_lift_iterations_raise_the_evaluation_return() {
     }
     assert_eq!(evals.len(), 2, "{evals:?}");
     assert!(evals.iter().all(|r| r.is_finite() && *r < 0.0), "{evals:?}");
-    assert!(evals[1] > evals[0], "no learning signal: {evals:?}");
+    // The critic starts knowing nothing of the returns and ends predicting most of their
+    // variance (measured: 0.006 at the first iteration, 0.93-0.97 over the last ten).
+    let explained: Vec<f64> = rows.iter().filter_map(|r| r.explained_variance).collect();
+    assert_eq!(explained.len(), rows.len(), "{rows:?}");
+    let last_ten = &explained[explained.len() - 10..];
+    assert!(
+        explained[0] < 0.2 && last_ten.iter().all(|v| *v > 0.6),
+        "no learning signal in the critic: {explained:?}"
+    );
 
     let policy = Policy::from_file(dir.path().join("run/policy.safetensors")).unwrap();
     let extra = &policy.metadata().extra;
