@@ -27,6 +27,17 @@ fn free_port() -> u16 {
 }
 
 /// A two-unit mock team on `port`: unit 0 listens, unit 1 connects.
+/// One team flies at a time in this binary: each mission test runs two or three processes
+/// ticking at 50 Hz with zenoh beside them, and seven teams at once on a 2-core machine once
+/// left two teams idle 60 s after an acknowledged `start` (the same tests pass alone and when
+/// rerun); a team the machine cannot serve stops, as it must, before the mission a test is about.
+fn one_team_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static TEAM: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    // A test that failed while holding it poisons nothing the next one needs.
+    TEAM.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 fn mock_team(dir: &Path, keys: &Path, port: u16) -> [Daemon; 2] {
     let listen = format!("tcp/127.0.0.1:{port}");
     let u0 = Daemon::unit(
@@ -168,6 +179,7 @@ fn check_commands(records: &[TickRecord]) {
 /// unit 1 is sane again the stop clears and the next start flies.
 #[test]
 fn a_key_holder_sending_absurd_states_is_its_own_fault_and_the_team_starts_again() {
+    let _one_team = one_team_at_a_time();
     const ABSURD_AT_S: f64 = 6.0;
     let dir = tempfile::tempdir().unwrap();
     let keys = keys(dir.path());
@@ -234,6 +246,7 @@ fn a_key_holder_sending_absurd_states_is_its_own_fault_and_the_team_starts_again
 
 #[test]
 fn a_mock_team_carries_into_transport_and_a_killed_unit_stops_its_peer() {
+    let _one_team = one_team_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let keys = keys(dir.path());
     let port = free_port();
@@ -286,6 +299,7 @@ fn a_mock_team_carries_into_transport_and_a_killed_unit_stops_its_peer() {
 
 #[test]
 fn an_operator_stop_from_the_console_holds_the_team() {
+    let _one_team = one_team_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let keys = keys(dir.path());
     let port = free_port();
@@ -324,6 +338,7 @@ fn an_operator_stop_from_the_console_holds_the_team() {
 
 #[test]
 fn drive_faults_on_the_emulated_can_bus_latch_a_stop() {
+    let _one_team = one_team_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let keys = keys(dir.path());
     let port = free_port();
@@ -359,6 +374,7 @@ fn drive_faults_on_the_emulated_can_bus_latch_a_stop() {
 
 #[test]
 fn a_simulated_mission_runs_as_separate_processes_and_logs_ground_truth() {
+    let _one_team = one_team_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("mission");
     let output = Command::new(env!("CARGO_BIN_EXE_moonhaul"))
@@ -440,6 +456,7 @@ fn the_daemon_refuses_bad_arguments_by_name() {
 
 #[test]
 fn a_stop_that_no_unit_hears_fails_naming_the_silent_units() {
+    let _one_team = one_team_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let keys = keys(dir.path());
     let text = console_fails(
@@ -462,6 +479,7 @@ fn a_stop_that_no_unit_hears_fails_naming_the_silent_units() {
 
 #[test]
 fn console_starts_are_answered_per_unit_and_refusals_say_why() {
+    let _one_team = one_team_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let keys = keys(dir.path());
     let port = free_port();
