@@ -25,8 +25,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use moonhaul_coord::auth::{KeyFile, Sealer};
 use moonhaul_coord::message::{
-    Body, Envelope, OperatorAck, OperatorCommand, Refusal, Rejection, Sender, UnitTick, Verdict,
-    PROTOCOL_VERSION,
+    Body, Envelope, OperatorAck, OperatorCommand, Refusal, Rejection, Sender, StopReason, UnitTick,
+    Verdict, PROTOCOL_VERSION,
 };
 use moonhaul_coord::Validator;
 use moonhaul_deploy::cli_support::wall_us;
@@ -260,6 +260,15 @@ impl Console {
     /// Whether every unit of the team has been heard.
     pub fn all_heard(&self) -> bool {
         (0..self.team_size).all(|i| self.units.contains_key(&i))
+    }
+
+    /// The first unit whose newest state announces a safety stop, and its reason. At start-up
+    /// each unit stops until it hears its peers, and each then reports the other's stop for
+    /// a tick or two: a start sent then is refused ("the team is stopped").
+    pub fn first_stopped(&self) -> Option<(usize, StopReason)> {
+        self.units
+            .iter()
+            .find_map(|(i, u)| u.tick.announce.safety_stop.map(|reason| (*i, reason)))
     }
 
     pub async fn close(self) {

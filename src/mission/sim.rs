@@ -94,7 +94,7 @@ const SIGTERM: i32 = 15;
 const STOP_WAIT: Duration = Duration::from_secs(10);
 /// How long the world may take to come up (its start file written).
 const WORLD_UP_WAIT: Duration = Duration::from_secs(120);
-/// How long the units may take to be heard by the operator console.
+/// How long the units may take to be heard by the operator console, none of them stopped.
 const UNITS_HEARD_WAIT: Duration = Duration::from_secs(60);
 /// Wall seconds a trial may take per simulated second of `--max-seconds`: a lockstep world on
 /// a loaded machine runs a few times slower than real time, never twenty.
@@ -523,16 +523,25 @@ async fn trial_run(
             &dir.join(format!("unit-{i}.log")),
         )?);
     }
-    // The operator: wait for every unit, then start.
+    // The operator: wait until every unit is heard and none reports a safety stop (each
+    // stops until it hears its peers), then start.
     let mut console = Console::open(&launch.keys, std::slice::from_ref(&endpoint)).await?;
     let heard_by = Instant::now() + UNITS_HEARD_WAIT;
-    while !console.all_heard() {
+    while !console.all_heard() || console.first_stopped().is_some() {
         tokio::select! {
             biased;
             why = signals.recv() => return Err(interrupt(why, &mut procs)),
             _ = console.listen(Duration::from_millis(100)) => {}
         }
         if Instant::now() >= heard_by {
+            if let (true, Some((unit, reason))) = (console.all_heard(), console.first_stopped()) {
+                bail!(
+                    "unit {unit} still reported a safety stop ({reason:?}) {} s after start-up; \
+                     see the unit-*.log in {}",
+                    UNITS_HEARD_WAIT.as_secs(),
+                    dir.display()
+                );
+            }
             bail!(
                 "only {} of {} units were heard within {} s; see the unit-*.log in {}",
                 console.units.len(),
