@@ -527,7 +527,8 @@ async fn trial_run(
     // stops until it hears its peers), then start.
     let mut console = Console::open(&launch.keys, std::slice::from_ref(&endpoint)).await?;
     let heard_by = Instant::now() + UNITS_HEARD_WAIT;
-    while !console.all_heard() || console.first_stopped().is_some() {
+    let mut world_ended = false;
+    while !world_ended && (!console.all_heard() || console.first_stopped().is_some()) {
         tokio::select! {
             biased;
             why = signals.recv() => return Err(interrupt(why, &mut procs)),
@@ -550,14 +551,23 @@ async fn trial_run(
                 dir.display()
             );
         }
-        for p in &mut procs.0 {
+        for (k, p) in procs.0.iter_mut().enumerate() {
             if let Some(status) = p.exited()? {
+                // The world's own end (its --max-seconds) with every unit heard but never
+                // settled: a team that never starts, which the summary reports.
+                if k == 0 && console.all_heard() {
+                    world_ended = true;
+                    break;
+                }
                 bail!("{} before the mission started", p.failure(status));
             }
         }
     }
+    if world_ended {
+        eprintln!("mission sim: the world ended before the team settled to start");
+    }
     // The start, unless the world ends first (its --max-seconds, a team that never starts).
-    {
+    if !world_ended {
         let start = operator::start(&mut console, Duration::from_secs(20));
         tokio::pin!(start);
         loop {
