@@ -27,13 +27,10 @@ use super::msgs::{
     RosType, StringMsg, TfMessage, Time, Transform, TransformStamped, Vector3, DIAGNOSTIC_ARRAY,
     JOINT_STATE, POSE_STAMPED, STRING, TF_MESSAGE,
 };
-use crate::mission_log::UnitLinks;
+// The world frame (`/tf_static`'s root) and `/tf` are the mission logs' own.
+use crate::mission_log::{UnitLinks, TF_TOPIC, WORLD_FRAME_ID as WORLD_FRAME};
 use crate::record::{TickRecord, WorldFrame};
 
-/// The shared world frame (the world log's, and `/tf_static`'s root).
-pub const WORLD_FRAME: &str = "world";
-/// `/tf`.
-pub const TF_TOPIC: &str = "/tf";
 /// `/tf_static`.
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
 /// `/diagnostics`.
