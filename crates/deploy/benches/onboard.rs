@@ -11,8 +11,11 @@
 //!   survivor's first held tick, over many trials;
 //! - **tick with ROS 2 on and off** (`--ros2-ticks N`): unit 0's tick plus its hand-over to the
 //!   live ROS 2 publisher, at 50 Hz on the wall clock, with publishing switched on and off in
-//!   alternating blocks of 100 ticks in one run; the publisher sends to a zenoh peer on
-//!   loopback that receives every sample.
+//!   alternating blocks of 100 ticks in one run, as the daemon runs it (the tick on the
+//!   runtime's `block_on` thread, the publisher on its own thread); the publisher sends to a
+//!   zenoh peer on loopback that receives every sample. Besides the tick with the hand-over,
+//!   the hand-over alone and how late each tick started after its due time (what a
+//!   publisher busy on the runtime's workers, which drive the timer, would show).
 //!
 //! Percentiles are of the measured samples (nearest rank).
 
@@ -417,9 +420,12 @@ async fn ros2_tick(ticks: usize) {
     let boot = wall_us();
     let mut units = [unit(0, &keys, boot), unit(1, &keys, boot)];
     let (mut on, mut off) = (Vec::new(), Vec::new());
+    let (mut on_tick, mut handover) = (Vec::new(), Vec::new());
     let mut interval = tokio::time::interval(Duration::from_micros(PERIOD_US));
+    let (mut late_on, mut late_off) = (Vec::new(), Vec::new());
     for k in 0..ticks {
-        interval.tick().await;
+        let due = interval.tick().await;
+        let late = due.elapsed().as_secs_f64() * 1e6;
         let now = wall_us();
         let frames = [units[0].frame.clone(), units[1].frame.clone()];
         let start = start_frame(&keys, now);
@@ -432,14 +438,19 @@ async fn ros2_tick(ticks: usize) {
         let publishing = (k / BLOCK) % 2 == 1;
         let t0 = Instant::now();
         units[0].tick(now, &inbox0);
+        let t1 = Instant::now();
         if publishing {
             publisher.offer(&units[0].record);
         }
         let us = t0.elapsed().as_secs_f64() * 1e6;
         if publishing {
-            on.push(us)
+            on.push(us);
+            late_on.push(late);
+            on_tick.push((t1 - t0).as_secs_f64() * 1e6);
+            handover.push(t1.elapsed().as_secs_f64() * 1e6);
         } else {
-            off.push(us)
+            off.push(us);
+            late_off.push(late);
         }
         units[1].tick(now, &inbox1);
     }
@@ -455,6 +466,18 @@ async fn ros2_tick(ticks: usize) {
     );
     percentiles("tick with ROS 2 off", "us", &mut off);
     percentiles("tick with ROS 2 on (incl. the hand-over)", "us", &mut on);
+    percentiles("  of which the tick", "us", &mut on_tick);
+    percentiles("  of which the hand-over", "us", &mut handover);
+    percentiles(
+        "tick's start after its due time, ROS 2 off",
+        "us",
+        &mut late_off,
+    );
+    percentiles(
+        "tick's start after its due time, ROS 2 on",
+        "us",
+        &mut late_on,
+    );
 }
 
 fn arg(name: &str, default: usize) -> usize {
