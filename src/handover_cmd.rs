@@ -32,13 +32,17 @@ pub enum Flier {
 
 #[derive(Debug, clap::Args)]
 pub struct HandoverArgs {
-    /// Shipped payloads to fly, comma-separated (a training world rebuilds the capture's
-    /// world, so payload files are not taken).
-    #[arg(long, value_delimiter = ',', default_value = "box,bricks,sledge")]
+    /// Payloads to fly, comma-separated: shipped ones or generated members (`gen<i>`); a
+    /// training world rebuilds the capture's world, so payload files are not taken. The sledge
+    /// is left out by default: it is the payload no training sees.
+    #[arg(long, value_delimiter = ',', default_value = "box,bricks")]
     payload: Vec<PayloadKind>,
-    /// Missions per payload, 1 to 10000.
+    /// Missions per payload of `--payload`, 1 to 10000.
     #[arg(long, default_value_t = 16)]
     episodes: usize,
+    /// Missions per member of the sim config's generated payload family, 0 to 10000 (0: none).
+    #[arg(long, default_value_t = 4)]
+    generated_episodes: usize,
     /// Mission k of a payload flies the world of the k-th stream of this seed.
     #[arg(long, default_value_t = 7)]
     seed: u64,
@@ -73,6 +77,12 @@ pub struct HandoverArgs {
 pub fn run(args: HandoverArgs) -> Result<()> {
     if !(1..=10_000).contains(&args.episodes) {
         bail!("--episodes {}: must be 1 to 10000", args.episodes);
+    }
+    if args.generated_episodes > 10_000 {
+        bail!(
+            "--generated-episodes {}: must be 0 to 10000",
+            args.generated_episodes
+        );
     }
     if args.threads > 1024 {
         bail!("--threads {}: at most 1024", args.threads);
@@ -111,24 +121,35 @@ pub fn run(args: HandoverArgs) -> Result<()> {
             })),
         })
     };
-    let mut handovers = Vec::new();
     for &payload in &args.payload {
+        scene
+            .payload(payload)
+            .with_context(|| format!("--payload {}", scene.payload_name(payload)))?;
+    }
+    let family = scene.config.randomization.generated_payloads.count;
+    let flights = args
+        .payload
+        .iter()
+        .map(|&p| (p, args.episodes))
+        .chain((0..family).map(|i| (PayloadKind::Generated(i), args.generated_episodes)))
+        .filter(|&(_, count)| count > 0);
+    let mut handovers = Vec::new();
+    for (payload, count) in flights {
         let run = Episodes {
             payload,
             randomize: true,
-            count: args.episodes,
+            count,
             seed: args.seed,
             threads: args.threads,
         };
-        let bar = ProgressBar::new(args.episodes as u64);
+        let bar = ProgressBar::new(count as u64);
         let missions = deployed::missions(&scene, &stack, &controller, run, true, &bar)
-            .with_context(|| format!("flying {}", payload.name()))?;
+            .with_context(|| format!("flying {}", scene.payload_name(payload)))?;
         bar.finish_and_clear();
         let completed = missions.iter().filter(|m| m.completed).count();
         eprintln!(
-            "{}: {completed}/{} missions completed; their hand-overs kept",
-            payload.name(),
-            args.episodes
+            "{}: {completed}/{count} missions completed; their hand-overs kept",
+            scene.payload_name(payload),
         );
         handovers.extend(
             missions

@@ -35,6 +35,10 @@ pub enum PayloadKind {
     /// refused, since a config cannot say which file it means.
     #[serde(skip_deserializing)]
     Custom,
+    /// Member `i` of the scene's generated family ([`GeneratedPayloads`]): a box of drawn size,
+    /// mass and centre of mass, the same for every scene built from the same config. Named
+    /// `gen<i>` on the command line; in configs only through `[randomization.generated_payloads]`.
+    Generated(u8),
 }
 
 impl PayloadKind {
@@ -49,22 +53,142 @@ impl PayloadKind {
             PayloadKind::Bricks => "bricks",
             PayloadKind::Sledge => "sledge",
             PayloadKind::Custom => "custom",
+            PayloadKind::Generated(_) => "generated",
         }
     }
 }
 
-/// Parses a shipped payload's name only: `custom` names no file.
+/// Parses a shipped payload's name or a generated payload's (`gen<i>`, which a scene then
+/// checks it has); `custom` names no file.
 impl std::str::FromStr for PayloadKind {
     type Err = SimError;
 
     fn from_str(s: &str) -> Result<Self, SimError> {
+        if let Some(i) = s.strip_prefix("gen").and_then(|i| i.parse::<u8>().ok()) {
+            return Ok(PayloadKind::Generated(i));
+        }
         PayloadKind::ALL
             .into_iter()
             .find(|p| p.name() == s)
             .ok_or_else(|| SimError::Config {
                 field: "payload",
-                reason: format!("unknown payload {s:?} (expected box, bricks or sledge)"),
+                reason: format!(
+                    "unknown payload {s:?} (expected box, bricks, sledge or gen<i>, a generated \
+                     payload)"
+                ),
             })
+    }
+}
+
+/// A family of box payloads the scene generates at build time (not in the paper): training on
+/// the paper's two crates alone taught the lift one grasp height, and a lift policy cloned on
+/// them never lifted the sledge or any other crate (docs/measurements/2026-12-04.md). The
+/// family spans sizes, masses and centre-of-mass offsets around the shipped payloads, so a
+/// policy sees many grasp heights, loads and tilting moments; the shipped payloads and the
+/// test crates stay out of it (a draw is continuous, they are single points). Drawn from `seed`
+/// alone, so every scene built from one config holds the same family (a hand-over start names
+/// its member and is replayed in another process).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GeneratedPayloads {
+    /// Members of the family, 0 to 64 (0: none).
+    pub count: u8,
+    /// The family's draws come from this seed only.
+    pub seed: u64,
+    /// Probability that a world carries a member of the family rather than one of `payloads`.
+    pub share: f64,
+    /// Box size ranges along x (travel), y (between the grasps) and z, m; uniform. Every x
+    /// is at least every y (the long side along x, as the payload convention asks).
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
+    pub size_x_m: [f64; 2],
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
+    pub size_y_m: [f64; 2],
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
+    pub size_z_m: [f64; 2],
+    /// Mass range, kg; uniform. The inertia is the solid box's.
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
+    pub mass_kg: [f64; 2],
+    /// Largest centre-of-mass offset from the box centre along x, y, z, m; each uniform in
+    /// ±this (at most a third of the smallest half size).
+    #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
+    pub com_offset_m: [f64; 3],
+}
+
+/// One generated payload: its box, mass and centre of mass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GeneratedPayload {
+    pub size_m: [f64; 3],
+    pub mass_kg: f64,
+    pub com_m: [f64; 3],
+}
+
+impl GeneratedPayload {
+    /// The payload as a URDF (the payload convention of [`crate::scene`]), so a generated
+    /// payload passes every check a payload file does.
+    pub fn urdf(&self, name: &str) -> String {
+        let [x, y, z] = self.size_m;
+        let m = self.mass_kg;
+        let [cx, cy, cz] = self.com_m;
+        let (ixx, iyy, izz) = (
+            m * (y * y + z * z) / 12.0,
+            m * (x * x + z * z) / 12.0,
+            m * (x * x + y * y) / 12.0,
+        );
+        format!(
+            "<?xml version=\"1.0\"?>\n<robot name=\"{name}\">\n  <link name=\"payload\">\n    \
+             <inertial>\n      <origin xyz=\"{cx} {cy} {cz}\" rpy=\"0 0 0\"/>\n      \
+             <mass value=\"{m}\"/>\n      <inertia ixx=\"{ixx}\" ixy=\"0\" ixz=\"0\" \
+             iyy=\"{iyy}\" iyz=\"0\" izz=\"{izz}\"/>\n    </inertial>\n    <collision>\n      \
+             <geometry><box size=\"{x} {y} {z}\"/></geometry>\n    </collision>\n  </link>\n\
+             </robot>\n"
+        )
+    }
+}
+
+impl GeneratedPayloads {
+    fn validate(&self) -> Result<(), FieldError> {
+        count("count", self.count as u64, 0, 64)?;
+        in_range("share", self.share, 0.0, 1.0)?;
+        interval("size_x_m", self.size_x_m, 0.05, 2.0)?;
+        interval("size_y_m", self.size_y_m, 0.05, 1.0)?;
+        interval("size_z_m", self.size_z_m, 0.05, 1.0)?;
+        interval("mass_kg", self.mass_kg, 0.1, 100.0)?;
+        if self.size_x_m[0] < self.size_y_m[1] {
+            return Err(FieldError::new(
+                "size_x_m",
+                format!(
+                    "the shortest x ({} m) must be at least the longest y ({} m): the long side \
+                     lies along x",
+                    self.size_x_m[0], self.size_y_m[1]
+                ),
+            ));
+        }
+        let smallest = [self.size_x_m[0], self.size_y_m[0], self.size_z_m[0]];
+        for (axis, (&offset, size)) in self.com_offset_m.iter().zip(smallest).enumerate() {
+            in_range("com_offset_m", offset, 0.0, size / 6.0).map_err(|e| {
+                FieldError::new(
+                    e.field,
+                    format!("axis {}: {}", ["x", "y", "z"][axis], e.reason),
+                )
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Draws one member from `rng`.
+    pub fn draw(&self, rng: &mut ChaCha8Rng) -> GeneratedPayload {
+        let size_m = [
+            uniform(rng, self.size_x_m),
+            uniform(rng, self.size_y_m),
+            uniform(rng, self.size_z_m),
+        ];
+        let mass_kg = uniform(rng, self.mass_kg);
+        let com_m = self.com_offset_m.map(|d| uniform(rng, [-d, d]));
+        GeneratedPayload {
+            size_m,
+            mass_kg,
+            com_m,
+        }
     }
 }
 
@@ -81,8 +205,10 @@ pub struct Randomization {
     pub arm_position_noise_std_rad: f64,
     /// Half-width of the uniform offset added to each arm joint at reset, rad.
     pub initial_joint_variation_rad: f64,
-    /// Payloads drawn uniformly at reset.
+    /// Payloads drawn uniformly at reset (when the world does not carry a generated one).
     pub payloads: Vec<PayloadKind>,
+    /// The generated family and how often a world carries one of its members.
+    pub generated_payloads: GeneratedPayloads,
     /// Payload mass scale range, uniform.
     #[serde(deserialize_with = "moonhaul_core::config::exact_array")]
     pub payload_mass_scale: [f64; 2],
@@ -161,6 +287,19 @@ impl Randomization {
                 format!("needs 1 to 64 entries, got {}", self.payloads.len()),
             )
         })?;
+        if self.payloads.contains(&PayloadKind::Custom)
+            || self
+                .payloads
+                .iter()
+                .any(|p| matches!(p, PayloadKind::Generated(_)))
+        {
+            return Err(FieldError::new(
+                "payloads",
+                "names shipped payloads only (box, bricks, sledge); generated payloads come \
+                 from [randomization.generated_payloads]",
+            ));
+        }
+        section("generated_payloads", || self.generated_payloads.validate())?;
         section("terrain", || {
             let t = &self.terrain;
             in_range("max_peak_to_peak_m", t.max_peak_to_peak_m, 0.0, 0.5)?;
@@ -177,7 +316,19 @@ impl Randomization {
 
     /// Draws one episode's randomization.
     pub fn draw(&self, rng: &mut ChaCha8Rng) -> EpisodeDraw {
-        let payload = self.payloads[rng.random_range(0..self.payloads.len())];
+        let listed = self.payloads[rng.random_range(0..self.payloads.len())];
+        // The family's choice comes from a side stream of the world's generator (a copy on
+        // another ChaCha stream), so the world's own stream — everything drawn after this —
+        // is what it was before the family existed: a world with a given seed and a forced
+        // payload has the same terrain, friction and noise with or without the family.
+        let generated = &self.generated_payloads;
+        let mut side = rng.clone();
+        side.set_stream(!rng.get_stream());
+        let payload = if generated.count > 0 && side.random_bool(generated.share) {
+            PayloadKind::Generated(side.random_range(0..generated.count))
+        } else {
+            listed
+        };
         let payload_mass_scale = uniform(rng, self.payload_mass_scale);
         let wheel_friction = uniform(rng, self.wheel_friction);
         let d = self.initial_joint_variation_rad;
@@ -282,11 +433,35 @@ mod tests {
             .flat_map(|d| d.initial_joint_offset_rad.concat())
             .collect();
         assert!(ks_uniform(&mut q, -0.02, 0.02) < ks_critical(q.len()));
+        // The generated family takes its share; the listed payloads split the rest evenly.
+        let rest = 1.0 - r.generated_payloads.share;
         for kind in PayloadKind::ALL {
             let share = draws.iter().filter(|d| d.payload == kind).count() as f64 / 4000.0;
-            assert!((share - 1.0 / 3.0).abs() < 0.03, "{kind:?}: {share}");
+            assert!((share - rest / 3.0).abs() < 0.03, "{kind:?}: {share}");
         }
         assert!(draws.iter().all(|d| d.payload_mass_scale == 1.0));
+    }
+
+    #[test]
+    fn the_generated_family_leaves_the_worlds_own_stream_alone() {
+        let with = shipped();
+        assert!(with.generated_payloads.count > 0 && with.generated_payloads.share > 0.0);
+        let mut without = with.clone();
+        without.generated_payloads.count = 0;
+        let (mut a, mut b) = (ChaCha8Rng::seed_from_u64(3), ChaCha8Rng::seed_from_u64(3));
+        let mut generated = 0;
+        for _ in 0..200 {
+            let (x, y) = (with.draw(&mut a), without.draw(&mut b));
+            assert_eq!(x.wheel_friction, y.wheel_friction);
+            assert_eq!(x.initial_joint_offset_rad, y.initial_joint_offset_rad);
+            match x.payload {
+                PayloadKind::Generated(_) => generated += 1,
+                p => assert_eq!(p, y.payload),
+            }
+            // What the world draws next (its terrain) is the same too.
+            assert_eq!(a.random::<u64>(), b.random::<u64>());
+        }
+        assert!((60..140).contains(&generated), "{generated}");
     }
 
     #[test]

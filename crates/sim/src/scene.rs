@@ -29,7 +29,9 @@
 //! arm configuration that reaches the grasp; every violation is an error naming the file. The shipped
 //! payloads are `assets/payload_<name>.urdf` ([`PayloadKind::ALL`]); any other file is loaded
 //! with [`SceneModel::add_payload_file`] as [`PayloadKind::Custom`], one per scene, named by
-//! its file stem ([`SceneModel::payload_name`]).
+//! its file stem ([`SceneModel::payload_name`]). A scene also generates the family of
+//! `[randomization.generated_payloads]` ([`PayloadKind::Generated`], `gen<i>`), from URDF text
+//! through the same checks.
 //!
 //! **Files.** This root holds the shared types ([`SceneModel`], [`Env`]); the private
 //! submodules hold one concept each: `payload` loads and checks payload URDFs, `grasp` solves
@@ -201,6 +203,7 @@ impl SceneModel {
             let payload = scene.load_payload(&path)?;
             scene.payloads.insert(kind, payload);
         }
+        scene.generate_payloads()?;
         Ok(scene)
     }
 

@@ -89,6 +89,7 @@ fn a_payload_file_loads_grasps_and_is_held() {
     scene.add_payload_file(&other).unwrap();
     assert_eq!(scene.payload_name(PayloadKind::Custom), "crate_other");
     scene.config.randomization.payloads = vec![PayloadKind::Custom];
+    scene.config.randomization.generated_payloads.share = 0.0;
     let env = Env::new(&scene, 3, EnvOptions::default()).unwrap();
     assert_eq!(env.payload_kind(), PayloadKind::Custom);
 }

@@ -1,7 +1,11 @@
 //! Payload URDFs: loading, the payload convention (see the [`super`] module docs), and the
 //! custom payload slot ([`PayloadKind::Custom`]).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use moonhaul_core::kinematics::parse_urdf;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 use nalgebra::Vector3;
 
@@ -87,9 +91,13 @@ fn check_convention(path: &Path, robot: &urdf_rs::Robot) -> Result<Vector3<f64>,
 impl SceneModel {
     /// Loads the payload URDF at `path`, checks the payload convention and solves its grasp.
     pub(super) fn load_payload(&self, path: &Path) -> Result<PayloadModel, SimError> {
-        let robot = model::read_urdf(path)?;
-        let half_extents_m = check_convention(path, &robot)?;
-        let model = RobotModel::from_robot(path, &robot)?;
+        self.payload_model(path, &model::read_urdf(path)?)
+    }
+
+    /// Checks a parsed payload URDF (`path` names it in errors) and solves its grasp.
+    fn payload_model(&self, path: &Path, robot: &urdf_rs::Robot) -> Result<PayloadModel, SimError> {
+        let half_extents_m = check_convention(path, robot)?;
+        let model = RobotModel::from_robot(path, robot)?;
         let lift_path_q_rad = self
             .solve_grasp(&half_extents_m)
             .map_err(|e| SimError::Model {
@@ -102,6 +110,44 @@ impl SceneModel {
             grasp_q_rad: lift_path_q_rad[0],
             lift_path_q_rad,
         })
+    }
+
+    /// Generates the family of `[randomization.generated_payloads]` as
+    /// [`PayloadKind::Generated`] members, each built from its URDF text through the checks a
+    /// payload file passes. A draw whose grasp the arm cannot reach is drawn again (the next
+    /// draw from the family's stream), a few times at most.
+    pub(super) fn generate_payloads(&mut self) -> Result<(), SimError> {
+        const ATTEMPTS: usize = 8;
+        let family = self.config.randomization.generated_payloads.clone();
+        let mut rng = ChaCha8Rng::seed_from_u64(family.seed);
+        for i in 0..family.count {
+            let kind = PayloadKind::Generated(i);
+            let name = self.payload_name(kind);
+            let path = PathBuf::from(format!("[randomization.generated_payloads] member {name}"));
+            let mut last = None;
+            for _ in 0..ATTEMPTS {
+                let text = family.draw(&mut rng).urdf(&name);
+                let robot = parse_urdf(&text).map_err(|e| SimError::Model {
+                    path: path.clone(),
+                    reason: e.to_string(),
+                })?;
+                match self.payload_model(&path, &robot) {
+                    Ok(payload) => {
+                        self.payloads.insert(kind, payload);
+                        last = None;
+                        break;
+                    }
+                    Err(e) => last = Some(e),
+                }
+            }
+            if let Some(e) = last {
+                return Err(SimError::Config {
+                    field: "randomization.generated_payloads",
+                    reason: format!("{ATTEMPTS} draws of {name} in a row were not graspable: {e}"),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Loads the payload URDF at `path` (see the [`super`] module docs for what it must be),
@@ -125,10 +171,12 @@ impl SceneModel {
         })
     }
 
-    /// The payload's name for output folders and reports: `box`, `bricks`, `sledge`, or the
-    /// custom payload's file stem (`crate_small` for `crate_small.urdf`).
+    /// The payload's name for output folders and reports: `box`, `bricks`, `sledge`, `gen<i>`
+    /// for a generated one, or the custom payload's file stem (`crate_small` for
+    /// `crate_small.urdf`).
     pub fn payload_name(&self, kind: PayloadKind) -> String {
         match (kind, self.payloads.get(&kind)) {
+            (PayloadKind::Generated(i), _) => format!("gen{i}"),
             (PayloadKind::Custom, Some(p)) => p
                 .model
                 .path
