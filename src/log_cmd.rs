@@ -66,7 +66,9 @@ use anyhow::{bail, Context, Result};
 use moonhaul_coord::message::{FaultKind, StopReason};
 use moonhaul_coord::HoldReason;
 use moonhaul_core::state::Phase;
-use moonhaul_deploy::mission_log::{read_unit_log_contents, read_world_log_contents, LogEnd};
+use moonhaul_deploy::mission_log::{
+    read_metadata, read_unit_log_contents, read_world_log_contents, LogEnd,
+};
 use moonhaul_deploy::record::{TickRecord, WorldFrame};
 use plotters::prelude::*;
 
@@ -165,7 +167,11 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
             }
         };
         let folder = trial.log.parent().unwrap_or(Path::new("."));
-        let UnitLogs { clamp, stop } = read_unit_logs(folder, team, &mut unread);
+        let UnitLogs {
+            clamp,
+            stop,
+            controller,
+        } = read_unit_logs(folder, team, &mut unread);
         let m = match trial_metrics(&samples, stop.as_ref()) {
             Ok(m) => m,
             Err(e) => {
@@ -193,6 +199,7 @@ pub fn summarize(dir: &Path, json: bool) -> Result<()> {
             metrics: m,
             stop,
             clamp,
+            controller,
             unread,
         });
     }
@@ -775,6 +782,10 @@ struct TrialSummary {
     /// What the synchronization clamp did, from the units' logs (`unit-<i>.mcap` beside the
     /// world log); `None` when the trial folder has none.
     clamp: Option<ClampStats>,
+    /// What flew the units, from their logs' `controller` metadata: `scripted`, `learned`, or
+    /// each unit's (`unit 0 learned, unit 1 scripted`) when they differ; `None` when no unit
+    /// log says.
+    controller: Option<String>,
     /// What of the trial's logs could not be read: truncation, frames left out, unit logs.
     unread: Vec<String>,
 }
@@ -806,6 +817,7 @@ struct UnitLogs {
     /// `None` when the trial folder has no unit log.
     clamp: Option<ClampStats>,
     stop: Option<TrialStop>,
+    controller: Option<String>,
 }
 
 /// Reads the unit logs of a trial folder of a team of `team` units (`unit-<i>.mcap`, i <
@@ -825,8 +837,10 @@ fn read_unit_logs(folder: &Path, team: usize, unread: &mut Vec<String>) -> UnitL
         return UnitLogs {
             clamp: None,
             stop: None,
+            controller: None,
         };
     }
+    let mut controllers = Vec::new();
     for (i, path) in paths.iter().enumerate() {
         if !path.exists() {
             unread.push(format!(
@@ -854,6 +868,14 @@ fn read_unit_logs(folder: &Path, team: usize, unread: &mut Vec<String>) -> UnitL
             ));
         }
         any = true;
+        match read_metadata(path) {
+            Ok(m) => {
+                if let Some(c) = m.get("controller") {
+                    controllers.push(format!("unit {i} {c}"));
+                }
+            }
+            Err(e) => unread.push(format!("{e}: its controller is not known")),
+        }
         for r in &contents.records {
             let running =
                 r.phase.has_policy() && matches!(r.hold, None | Some(HoldReason::NoAdmissibleStep));
@@ -872,6 +894,18 @@ fn read_unit_logs(folder: &Path, team: usize, unread: &mut Vec<String>) -> UnitL
             held_fraction: tally.no_step_fraction().unwrap_or(0.0),
         }),
         stop: TrialStop::of(stops),
+        controller: agreed_controller(controllers),
+    }
+}
+
+/// The controller every unit flew (`unit <i> <name>` each), or each unit's when they differ.
+fn agreed_controller(per_unit: Vec<String>) -> Option<String> {
+    let name = |s: &str| s.splitn(3, ' ').nth(2).unwrap_or("").to_owned();
+    let first = name(per_unit.first()?);
+    if per_unit.iter().all(|u| name(u) == first) {
+        Some(first)
+    } else {
+        Some(per_unit.join(", "))
     }
 }
 
@@ -1271,19 +1305,20 @@ impl Summary {
             let _ = write!(
                 out,
                 "\n\nsynchronization clamp, from the unit logs (ticks running a phase policy, all \
-                 units)\n{:<22} {:>12} {:>11} {:>14} {:>12}",
+                 units)\n{:<22} {:>12} {:>11} {:>14} {:>12}  controller",
                 "trial", "policy ticks", "mean t_max", "clamped (t<1)", "no step"
             );
             for t in &self.trials {
                 if let Some(c) = &t.clamp {
                     let _ = write!(
                         out,
-                        "\n{:<22} {:>12} {:>11.3} {:>13.1}% {:>11.1}%",
+                        "\n{:<22} {:>12} {:>11.3} {:>13.1}% {:>11.1}%  {}",
                         format!("{}/trial-{}", t.payload, t.trial),
                         c.policy_ticks,
                         c.mean_t_max,
                         c.clamped_fraction * 100.0,
-                        c.held_fraction * 100.0
+                        c.held_fraction * 100.0,
+                        t.controller.as_deref().unwrap_or("unknown")
                     );
                 }
             }

@@ -416,6 +416,7 @@ fn a_simulated_mission_runs_as_separate_processes_and_logs_ground_truth() {
     // The summary pools the clamp's figures from the unit logs.
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["trials"][0]["controller"], "scripted", "{summary}");
     let clamp = &summary["trials"][0]["clamp"];
     assert!(clamp["policy_ticks"].as_u64().unwrap() > 0, "{clamp}");
     assert!(

@@ -22,7 +22,7 @@ use moonhaul_coord::message::{
 };
 use moonhaul_coord::{GateConfig, SyncConfig, Validator};
 use moonhaul_core::input::{read_capped_text, MAX_URDF_BYTES};
-use moonhaul_core::state::PlanarPose;
+use moonhaul_core::state::{Phase, PlanarPose};
 use moonhaul_core::task_config::TaskConfig;
 use moonhaul_core::unit::UnitSpec;
 use moonhaul_hal::can::UnitCanConfig;
@@ -34,7 +34,7 @@ use moonhaul_hal::unit::{
 use tokio::sync::Notify;
 use tracing::{info, warn};
 
-use crate::cli_support::{load_policies, wall_us, Signals};
+use crate::cli_support::{load_policies, policy_file, wall_us, Signals};
 use crate::mission_log::{LogInputs, UnitLog};
 use crate::network::{self, Access, FrameQueue, Keys, Outbox, QueueCounts, Role};
 use crate::record::TickRecord;
@@ -136,6 +136,16 @@ impl std::str::FromStr for Injection {
 pub enum ControllerKind {
     Learned,
     Scripted,
+}
+
+impl ControllerKind {
+    /// The name on the command line and in a unit log's `controller` metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            ControllerKind::Learned => "learned",
+            ControllerKind::Scripted => "scripted",
+        }
+    }
 }
 
 /// `moonhaul-unit`'s command line.
@@ -426,7 +436,15 @@ pub async fn run(args: DaemonArgs) -> Result<()> {
         Some(path) => Some(UnitLog::create(
             path,
             unit,
-            &LogInputs::read(&config.urdf, &log_inputs(&args, &config))?,
+            &LogInputs::read(&config.urdf, &log_inputs(&args, &config))?.flown_by(
+                args.controller.name(),
+                &match args.controller {
+                    ControllerKind::Learned => [Phase::Lift, Phase::Transport, Phase::Place]
+                        .map(|phase| policy_file(&config.policies, phase))
+                        .to_vec(),
+                    ControllerKind::Scripted => Vec::new(),
+                },
+            )?,
         )?),
         None => None,
     };

@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
 
-use moonhaul_core::input::{read_capped, read_capped_text, MAX_CONFIG_BYTES, MAX_URDF_BYTES};
+use moonhaul_core::input::{
+    read_capped, read_capped_text, MAX_CONFIG_BYTES, MAX_POLICY_BYTES, MAX_URDF_BYTES,
+};
 use moonhaul_core::kinematics::{parse_urdf, KinematicTree};
 use moonhaul_core::unit::UnitSpec;
 
@@ -26,8 +28,11 @@ pub(super) struct Attachment {
 pub struct LogInputs {
     pub(super) tree: KinematicTree,
     pub(super) spec: UnitSpec,
-    /// The URDF first, then the configs in the order given.
+    /// The URDF first, then the configs in the order given, then any policy files.
     pub(super) attachments: Vec<Attachment>,
+    /// What flew the unit (`scripted`, `learned`), the log's `controller` metadata; `None`
+    /// for a log of no controller (a world's).
+    pub(super) controller: Option<&'static str>,
 }
 
 impl LogInputs {
@@ -50,7 +55,24 @@ impl LogInputs {
             tree,
             spec,
             attachments,
+            controller: None,
         })
+    }
+
+    /// Records what flies the unit as the log's `controller` metadata, and attaches the
+    /// policy files it flies (at most [`MAX_POLICY_BYTES`] each), so a log says which
+    /// policies a learned mission ran.
+    pub fn flown_by(
+        mut self,
+        controller: &'static str,
+        policies: &[PathBuf],
+    ) -> Result<Self, LogError> {
+        self.controller = Some(controller);
+        for path in policies {
+            self.attachments
+                .push(attachment(path, read_capped(path, MAX_POLICY_BYTES)?));
+        }
+        Ok(self)
     }
 }
 

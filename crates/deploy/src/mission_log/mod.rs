@@ -15,7 +15,8 @@
 //!   frame.
 //!
 //! Every log carries the files it was recorded with as MCAP attachments ([`LogInputs`]: the
-//! unit URDF, then the configs), and `moonhaul` metadata (unit index, team size, payload size).
+//! unit URDF, then the configs, then a learned unit's policy files), and `moonhaul` metadata
+//! (unit index and what flew it, `controller`; team size, payload size).
 //!
 //! The log time of every message is the record's `stamp_us` (the team's clock, the world's time
 //! in a simulated mission), not the wall clock, so logs of one mission line up in Foxglove.
@@ -61,7 +62,7 @@ pub use error::LogError;
 pub use inputs::LogInputs;
 pub(crate) use links::UnitLinks;
 pub use read::{
-    read_attachments, read_unit_log, read_unit_log_contents, read_world_log,
+    read_attachments, read_metadata, read_unit_log, read_unit_log_contents, read_world_log,
     read_world_log_contents, LogContents, LogEnd,
 };
 pub use topics::{

@@ -1,6 +1,6 @@
 //! Reading mission logs back, truncated ones too.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{self, Read};
 use std::path::Path;
@@ -74,6 +74,21 @@ pub fn read_attachments(path: &Path) -> Result<LogContents<(String, Vec<u8>)>, L
         Ok(())
     })?;
     Ok(LogContents { records: out, end })
+}
+
+/// The `moonhaul` metadata of a log (`unit`, `controller`, …), by the rules of the readers
+/// above; empty when the log has none.
+pub fn read_metadata(path: &Path) -> Result<BTreeMap<String, String>, LogError> {
+    let mut out = BTreeMap::new();
+    read_records(path, MAX_LOG_BYTES, |_, record| {
+        if let Record::Metadata(m) = record {
+            if m.name == "moonhaul" {
+                out.extend(m.metadata);
+            }
+        }
+        Ok(())
+    })?;
+    Ok(out)
 }
 
 /// Which channels a reader decodes, and what to call them in errors.

@@ -254,6 +254,52 @@ fn logs_attach_the_urdf_and_configs_they_were_recorded_with() {
 }
 
 #[test]
+fn a_unit_log_says_what_flew_it_and_attaches_the_policies() {
+    let dir = tempfile::tempdir().unwrap();
+    let policies: Vec<_> = ["lift", "transport", "place"]
+        .map(|p| repo_file(&format!("assets/policies/{p}.safetensors")))
+        .to_vec();
+    let learned = dir.path().join("unit-1.mcap");
+    let inputs_learned = inputs().flown_by("learned", &policies).unwrap();
+    let mut log = UnitLog::create(&learned, 1, &inputs_learned).unwrap();
+    log.write(&tick(1, 1)).unwrap();
+    log.finish().unwrap();
+    let metadata = read_metadata(&learned).unwrap();
+    assert_eq!(metadata["unit"], "1");
+    assert_eq!(metadata["controller"], "learned");
+    let attached = read_attachments(&learned).unwrap().records;
+    for file in &policies {
+        let (_, data) = attached
+            .iter()
+            .find(|(name, _)| name == &file.display().to_string())
+            .unwrap_or_else(|| panic!("{} not attached", file.display()));
+        assert_eq!(data, &std::fs::read(file).unwrap());
+    }
+    // A scripted unit attaches no policy; a log of no controller says none.
+    let scripted = dir.path().join("unit-0.mcap");
+    let inputs_scripted = inputs().flown_by("scripted", &[]).unwrap();
+    UnitLog::create(&scripted, 0, &inputs_scripted)
+        .unwrap()
+        .finish()
+        .unwrap();
+    assert_eq!(read_metadata(&scripted).unwrap()["controller"], "scripted");
+    let plain = dir.path().join("unit-2.mcap");
+    UnitLog::create(&plain, 2, &inputs())
+        .unwrap()
+        .finish()
+        .unwrap();
+    assert!(!read_metadata(&plain).unwrap().contains_key("controller"));
+    // A policy file that cannot be read is named before any log is created.
+    let missing = dir.path().join("lift.safetensors");
+    let e = inputs()
+        .flown_by("learned", std::slice::from_ref(&missing))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains(&missing.display().to_string()), "{e}");
+}
+
+#[test]
 fn chunks_are_compressed_and_span_at_most_a_second_of_log_time() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("world.mcap");

@@ -32,7 +32,11 @@ impl UnitLog {
     /// Creates (or replaces) the log of unit `unit` at `path`, drawing with the model of
     /// `inputs` and attaching its files.
     pub fn create(path: &Path, unit: usize, inputs: &LogInputs) -> Result<UnitLog, LogError> {
-        let file = LogFile::create(path, &[("unit", unit.to_string())], inputs)?;
+        let mut metadata = vec![("unit", unit.to_string())];
+        if let Some(controller) = inputs.controller {
+            metadata.push(("controller", controller.to_owned()));
+        }
+        let file = LogFile::create(path, &metadata, inputs)?;
         let ticks = file.json_channel(&unit_topic(unit), "moonhaul.TickRecord", &tick_schema())?;
         let tf = file.context.channel_builder(TF_TOPIC).build();
         let links = UnitFrames::new(
