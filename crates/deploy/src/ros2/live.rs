@@ -14,9 +14,8 @@
 //!   `@ros2_lv/<domain>/<zid>/0/<id>/MP/%/%<ns>/moonhaul_unit/<mangled topic>/<DDS type>/<hash>/<qos>`
 //!   (mangled: `/` → `%`; QoS in rmw_zenoh's compact form, defaults left empty).
 //!
-//! The GID is the first 16 bytes of the SHA-256 of the publisher's liveliness key expression:
-//! unique per publisher and stable across restarts (rmw_zenoh hashes the same key expression
-//! with XXH3; a subscriber only compares GIDs it received).
+//! The GID is rmw_zenoh's: the XXH3-128 of the publisher's liveliness key expression ([`gid`]),
+//! unique per publisher and stable across restarts of a session with the same id.
 //!
 //! # Never in the tick's way
 //!
@@ -58,7 +57,6 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use serde::Serialize;
-use sha2::{Digest, Sha256};
 use tracing::{info, warn};
 use zenoh::bytes::ZBytes;
 use zenoh::liveliness::LivelinessToken;
@@ -382,6 +380,13 @@ pub fn qos_keyexpr(qos: &Qos) -> String {
     format!(":{durability}:,{depth}:,:,:,,")
 }
 
+/// rmw_zenoh's GID of the entity with liveliness key expression `token`: its XXH3-128 (seed 0),
+/// the low 64 bits then the high 64, each little-endian (`liveliness_utils.cpp`, which
+/// `memcpy`s `low64` then `high64` on a little-endian host).
+pub fn gid(token: &str) -> [u8; 16] {
+    xxhash_rust::xxh3::xxh3_128(token.as_bytes()).to_le_bytes()
+}
+
 /// rmw_zenoh's attachment of one sample.
 pub fn attachment(sequence: i64, source_ns: i64, gid: &[u8; 16]) -> [u8; 33] {
     let mut out = [0u8; 33];
@@ -421,8 +426,7 @@ impl Declare<'_> {
             qos_keyexpr(&topic.qos),
         );
         self.next_id += 1;
-        let mut gid = [0u8; 16];
-        gid.copy_from_slice(&Sha256::digest(token.as_bytes())[..16]);
+        let gid = gid(&token);
         self.tokens.push(
             self.session
                 .liveliness()
@@ -556,6 +560,28 @@ mod tests {
         assert_eq!(taken.len, 1);
         assert_eq!(taken.records[0].tick, 99);
         assert_eq!(shared.dropped.load(Ordering::Relaxed), 3);
+    }
+
+    /// XXH3-128 as PyPI's `xxhash` 3.5.0 computes it (`xxh3_128_intdigest(s).to_bytes(16,
+    /// "little")`), on each of the hash's length ranges (0–16, 17–128, 129–240, longer) and
+    /// on a publisher token of the length a unit's have.
+    #[test]
+    fn gids_are_xxh3_128_as_the_reference_implementation_computes_it() {
+        let token = "@ros2_lv/0/1f2e3d4c5b6a79881f2e3d4c5b6a7988/0/10/MP/%/%unit_0/moonhaul_unit/\
+                     %unit_0%joint_states/sensor_msgs::msg::dds_::JointState_/\
+                     RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e/\
+                     ::,10:,:,:,,";
+        assert_eq!(token.len(), 217);
+        let hex = |g: [u8; 16]| g.iter().map(|b| format!("{b:02x}")).collect::<String>();
+        for (input, expected) in [
+            (String::new(), "7f498d4624c30160d8984701d306aa99"),
+            ("a".repeat(16), "158d82c4dd505724d030680654509fff"),
+            ("ab".repeat(50), "f35ddc919506e67eb8b729284b215bb7"),
+            (token.to_owned(), "44e8e1a277f98215c46ff2841a25330e"),
+            ("x".repeat(300), "5435c87d60b4d1a57abcd72aea375212"),
+        ] {
+            assert_eq!(hex(gid(&input)), expected, "length {}", input.len());
+        }
     }
 
     /// What the thread builds from its partial copy is what the full record gives.
