@@ -42,10 +42,10 @@
 //!
 //! Measured (`cargo bench -p moonhaul-deploy --bench onboard -- --ros2-ticks 3000`, 2 loaded
 //! cores, `docs/measurements/2026-12-04-ros2-tick.md`): a hand-over that woke the publishing
-//! task at every tick (a tokio `Notify`) cost the tick 57 µs at p50 and 243 µs at p99 (up to
-//! 2.8 ms, the woken worker preempting the tick); waking even a `SCHED_IDLE` thread at every
-//! tick (a futex wake in a VM) still cost 120 µs at p99; the queue polled on the thread's own
-//! period costs 2–7 µs and leaves the tick's p99 within a few per cent of publishing off.
+//! task at every tick (a tokio `Notify`) cost 57–125 µs at p50 and 0.24–3.2 ms at p99, the
+//! woken worker preempting the tick; waking even a `SCHED_IDLE` thread at every tick (a futex
+//! wake in a VM) still cost 120 µs at p99; the queue the thread polls costs 2–3 µs at p50 and
+//! 4–6 µs at p99, and the tick's p99 with publishing on was 0.94–0.95 of that with it off.
 //!
 //! `/tf_static` and `robot_description` are transient local in ROS 2; this session keeps no
 //! publication cache for late subscribers, so the thread sends both again every
@@ -161,7 +161,7 @@ impl Shared {
 
 /// Copies into `dst` the fields of `src` the live topics are built from (see
 /// [`UnitTopics::joint_state`], [`UnitTopics::tf`], [`UnitTopics::diagnostics`]), and no
-/// more: the whole record is about 1.5 KB, cold in the cache at every tick, and copying all
+/// more: the whole record is over 1 KB, cold in the cache at every tick, and copying all
 /// of it made the hand-over several times dearer. Every field is named, so a new one is not
 /// forgotten; the ones left out are marked `_`.
 fn copy_published(dst: &mut TickRecord, src: &TickRecord) {
