@@ -38,7 +38,7 @@ const USAGE: &str =
     "usage: cargo xtask <demo|test|setup|train-all|bench|vendor-check|cargo ARGS...>
 
   demo          run the main job: lift, transport and place a payload in simulation with
-                two wheel-arm units (the scripted controller through gate and clamp), and
+                two wheel-arm units (the learned phase policies through gate and clamp), and
                 bring up a unit's CAN drives (emulated); see runs/demo/
   test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
   setup         only install libtorch (PyTorch from PyPI) into the project venv
@@ -244,9 +244,9 @@ fn demo() -> Result<(), String> {
     eprintln!("xtask: checking the unit model assets/unit.urdf");
     moonhaul(&["urdf", "check", "assets/unit.urdf"])?;
     // The mission: three payloads, three trials each, as the paper flew them; every unit its
-    // own process on the sim-backed drives, peers and operator over zenoh. The scripted IK
-    // controller flies it through the same gate, action pipeline and clamp the policies use,
-    // until the policies trained in that pipeline complete it (README, "The action pipeline").
+    // own process on the sim-backed drives, peers and operator over zenoh, flying the bundled
+    // phase policies (assets/policies/) through the phase gate, the action pipeline and the
+    // clamp; each trial's controller is in summary.json (`trials[].controller`).
     stage(
         "the mission in simulation: 3 payloads x 3 trials, one world and two unit processes \
          each, every trial up to 90 s of simulated time (each prints when it starts and ends)",
@@ -255,7 +255,7 @@ fn demo() -> Result<(), String> {
                 "mission",
                 "sim",
                 "--controller",
-                "scripted",
+                "learned",
                 "--payload",
                 "box,bricks,sledge",
                 "--trials",
