@@ -86,6 +86,12 @@ pub trait VecEnv {
         vec![0.0; self.action_dim()]
     }
 
+    /// Steps after which an episode is cut by its time limit (rsl_rl's `max_episode_length`),
+    /// where the task has one; default none.
+    fn max_episode_steps(&self) -> Option<u64> {
+        None
+    }
+
     /// Metadata the exported policy must carry for a runtime to run it as trained (the phase
     /// tasks' action map and its version); default none.
     fn policy_metadata(&self) -> Vec<(String, String)> {

@@ -122,6 +122,10 @@ impl VecEnv for PendulumVecEnv {
         ACTION_DIM
     }
 
+    fn max_episode_steps(&self) -> Option<u64> {
+        Some(u64::from(MAX_EPISODE_STEPS))
+    }
+
     /// The pendulum has no privileged state: the critic sees the observation.
     fn critic_obs_dim(&self) -> usize {
         OBS_DIM

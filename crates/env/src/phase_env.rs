@@ -395,6 +395,10 @@ impl VecEnv for PhaseVecEnv {
         self.task.action_map().step.to_vec()
     }
 
+    fn max_episode_steps(&self) -> Option<u64> {
+        Some(self.task.max_steps())
+    }
+
     fn policy_metadata(&self) -> Vec<(String, String)> {
         moonhaul_core::action::ActionMap::metadata()
             .into_iter()

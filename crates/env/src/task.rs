@@ -29,11 +29,14 @@ use crate::EnvError;
 /// `randomization.payloads`, so every world carries it and the action map is built around its
 /// grasp. It is an argument, not a config field, because configs name payloads only by their
 /// shipped names; a run trained on a file needs the same file again to resume or export.
+///
+/// The env is `Send`, so a caller may step it on a thread of its own (the Python extension
+/// steps it with the interpreter's lock released).
 pub fn make_env(
     config: &TrainConfig,
     num_envs: usize,
     payload_file: Option<&Path>,
-) -> Result<Box<dyn VecEnv>, EnvError> {
+) -> Result<Box<dyn VecEnv + Send>, EnvError> {
     let task = config.run.task;
     let phase = match task {
         Task::Pendulum if payload_file.is_some() => {
@@ -145,6 +148,7 @@ mod tests {
             }
             let env = make_env(&config, 3, None).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(env.num_envs(), rows, "{name}");
+            assert!(env.max_episode_steps().is_some_and(|n| n > 0), "{name}");
         }
     }
 
