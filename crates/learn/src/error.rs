@@ -62,6 +62,33 @@ pub enum LearnError {
     Policy(#[from] moonhaul_core::policy::PolicyError),
 }
 
+/// Each environment error becomes the variant of the same name, so callers (and their tests)
+/// see an environment's error as they did when the environments lived in this crate.
+impl From<moonhaul_env::EnvError> for LearnError {
+    fn from(e: moonhaul_env::EnvError) -> Self {
+        use moonhaul_env::EnvError;
+        match e {
+            EnvError::Config(e) => LearnError::Config(e),
+            EnvError::InvalidConfig { field, reason } => {
+                LearnError::InvalidConfig { field, reason }
+            }
+            EnvError::Sim(e) => LearnError::Sim(e),
+            EnvError::HandOvers(e) => LearnError::HandOvers(e),
+            EnvError::Shape {
+                what,
+                expected,
+                found,
+            } => LearnError::Shape {
+                what,
+                expected,
+                found,
+            },
+            EnvError::NoExpert { reason } => LearnError::NoExpert { reason },
+            EnvError::NonFinite { what } => LearnError::NonFinite { what },
+        }
+    }
+}
+
 impl LearnError {
     pub(crate) fn io(path: impl Into<PathBuf>) -> impl FnOnce(std::io::Error) -> Self {
         let path = path.into();

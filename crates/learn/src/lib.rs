@@ -1,9 +1,14 @@
 //! # moonhaul-learn
 //!
 //! Training in simulation: PPO on libtorch through `tch`, faithful to rsl_rl (the PPO the paper
-//! used), the environments it trains on, and export of trained actors to the onboard policy
-//! format of [`moonhaul_core::policy`]. This is the only crate in the workspace that links
-//! libtorch; nothing that runs onboard depends on it.
+//! used), and export of trained actors to the onboard policy format of
+//! [`moonhaul_core::policy`]. This is the only crate in the workspace that links libtorch;
+//! nothing that runs onboard depends on it.
+//!
+//! The environments it trains on live in `moonhaul-env`, which has no libtorch, so that the
+//! Python extension can drive the same tasks under Python's own torch; this crate re-exports
+//! its modules ([`config`], [`env`], [`pendulum`], [`phase_env`], [`reward`], [`task`]) under
+//! the paths they always had here.
 //!
 //! The split follows rsl_rl: [`env`] (what a batched environment offers), [`storage`] (rollout
 //! buffer and GAE), [`ppo`] (the update), [`runner`] (rollout/update loop and evaluation),
@@ -16,24 +21,19 @@
 pub mod actor_critic;
 pub mod adam;
 pub mod checkpoint;
-pub mod config;
 pub mod distill;
-pub mod env;
 pub mod error;
 pub mod export;
 pub mod gaussian;
 pub mod metrics;
 pub mod mlp;
 pub mod normalizer;
-pub mod pendulum;
-pub mod phase_env;
 pub mod plot;
 pub mod ppo;
 pub mod provenance;
-pub mod reward;
 pub mod runner;
 pub mod storage;
-pub mod task;
 pub mod trainer;
 
 pub use error::LearnError;
+pub use moonhaul_env::{config, env, pendulum, phase_env, reward, task, EnvError};

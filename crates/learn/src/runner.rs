@@ -391,6 +391,7 @@ pub fn evaluate(env: &mut dyn VecEnv, policy: &ActorCritic, seed: u64) -> Result
 mod tests {
     use super::*;
     use crate::env::check_len;
+    use crate::EnvError;
 
     /// Steps after which every episode of [`Privileged`] is truncated.
     const EPISODE: usize = 3;
@@ -437,7 +438,7 @@ mod tests {
             OBS + self.privileged
         }
 
-        fn reset(&mut self, _: u64, obs: &mut [f64], critic: &mut [f64]) -> Result<(), LearnError> {
+        fn reset(&mut self, _: u64, obs: &mut [f64], critic: &mut [f64]) -> Result<(), EnvError> {
             let (n, c) = (self.num_envs(), self.critic_obs_dim());
             check_len("observation batch", obs, n * OBS)?;
             check_len("critic observation batch", critic, n * c)?;
@@ -453,14 +454,14 @@ mod tests {
             i: usize,
             obs: &mut [f64],
             critic: &mut [f64],
-        ) -> Result<(), LearnError> {
+        ) -> Result<(), EnvError> {
             self.x[i] = 0.1 * i as f64;
             self.t[i] = 0;
             self.observe(i, obs, critic);
             Ok(())
         }
 
-        fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
+        fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), EnvError> {
             let c = self.critic_obs_dim();
             for (i, a) in actions.iter().enumerate() {
                 out.rewards[i] = -self.x[i].powi(2);

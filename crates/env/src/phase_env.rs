@@ -17,7 +17,7 @@
 //! per unit ([`PhaseTask::expert`]), started afresh with each of its episodes (at a reset, an
 //! auto-reset inside [`VecEnv::step`], a hand-over start), and [`VecEnv::expert_actions`] labels
 //! each row with its unit's expert raw action ([`Episode::expert_action`]), the labels DAgger
-//! clones ([`crate::distill`]).
+//! clones (`moonhaul_learn::distill`).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -33,7 +33,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::env::{check_len, PipelineStats, VecEnv, VecStep};
 use crate::reward::{force_variance, Goal, PayloadSample, RewardConfig};
-use crate::LearnError;
+use crate::EnvError;
 
 /// Everything one world needs between steps, and its outputs of the last step.
 struct World {
@@ -155,7 +155,7 @@ impl PhaseVecEnv {
         gamma: f64,
         worlds: usize,
         threads: usize,
-    ) -> Result<Self, LearnError> {
+    ) -> Result<Self, EnvError> {
         let task = match phase {
             Some(phase) => PhaseTask::new(phase, tasks, sync, &scene)?,
             None => PhaseTask::mission(tasks, sync, &scene)?,
@@ -178,7 +178,7 @@ impl PhaseVecEnv {
 
     /// The same batch with `starts.fraction` of its worlds replayed from `starts.handovers`
     /// (rebuilt now, and at every reset).
-    pub fn with_handover_starts(mut self, starts: HandOverStarts) -> Result<Self, LearnError> {
+    pub fn with_handover_starts(mut self, starts: HandOverStarts) -> Result<Self, EnvError> {
         if starts.worlds(self.batch.len()) == 0 {
             return Ok(self);
         }
@@ -205,7 +205,7 @@ impl PhaseVecEnv {
 
     /// Rebuilds every world from `seed`: the hand-over worlds replayed from their captures,
     /// the others drawn as [`BatchEnv::reseed`] draws them.
-    fn rebuild(&mut self, seed: u64) -> Result<(), LearnError> {
+    fn rebuild(&mut self, seed: u64) -> Result<(), EnvError> {
         let worlds = self.batch.len();
         let starts = &self.starts;
         let options = self.task.env_options(true, None);
@@ -219,7 +219,7 @@ impl PhaseVecEnv {
     }
 
     /// Starts an episode in every world from its current (freshly built) state.
-    fn begin_all(&mut self, seed: u64) -> Result<(), LearnError> {
+    fn begin_all(&mut self, seed: u64) -> Result<(), EnvError> {
         let scene = self.batch.scene();
         let mut worlds = Vec::with_capacity(self.batch.len());
         for (i, (env, state)) in self
@@ -395,6 +395,10 @@ impl VecEnv for PhaseVecEnv {
         self.task.action_map().step.to_vec()
     }
 
+    fn max_episode_steps(&self) -> Option<u64> {
+        Some(self.task.max_steps())
+    }
+
     fn policy_metadata(&self) -> Vec<(String, String)> {
         moonhaul_core::action::ActionMap::metadata()
             .into_iter()
@@ -407,7 +411,7 @@ impl VecEnv for PhaseVecEnv {
         seed: u64,
         obs: &mut [f64],
         critic_obs: &mut [f64],
-    ) -> Result<(), LearnError> {
+    ) -> Result<(), EnvError> {
         check_len("reset observations", obs, self.num_envs() * ACTOR_OBS_DIM)?;
         check_len(
             "reset critic observations",
@@ -425,12 +429,12 @@ impl VecEnv for PhaseVecEnv {
         index: usize,
         obs: &mut [f64],
         critic_obs: &mut [f64],
-    ) -> Result<(), LearnError> {
+    ) -> Result<(), EnvError> {
         check_len("reset observation", obs, ACTOR_OBS_DIM)?;
         check_len("reset critic observation", critic_obs, CRITIC_OBS_DIM)?;
         let w = index / UNITS;
         if w >= self.worlds.len() {
-            return Err(LearnError::Shape {
+            return Err(EnvError::Shape {
                 what: "env index",
                 expected: self.num_envs(),
                 found: index,
@@ -453,10 +457,10 @@ impl VecEnv for PhaseVecEnv {
         Ok(())
     }
 
-    fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), LearnError> {
+    fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), EnvError> {
         check_len("expert actions", actions, self.num_envs() * UNIT_ACTION_DIM)?;
         if self.expert_plan.is_none() {
-            return Err(LearnError::NoExpert {
+            return Err(EnvError::NoExpert {
                 reason: "this phase env was built without a mission plan for its scripted \
                          expert (a training config's [warm_start] mission)"
                     .into(),
@@ -467,7 +471,7 @@ impl VecEnv for PhaseVecEnv {
             let step = world.episode.steps();
             let next = world.expert.as_ref().map_or(0, |e| e.next_step);
             if step != next && step + 1 != next {
-                return Err(LearnError::NoExpert {
+                return Err(EnvError::NoExpert {
                     reason: format!(
                         "world {w} is at step {step} of its episode, its experts have seen \
                          {next} steps of it: they must be asked at every step from the \
@@ -505,7 +509,7 @@ impl VecEnv for PhaseVecEnv {
         Some(total)
     }
 
-    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
+    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), EnvError> {
         let rows = self.num_envs();
         check_len("actions", actions, rows * UNIT_ACTION_DIM)?;
         for (w, world) in self.worlds.iter_mut().enumerate() {
@@ -713,7 +717,7 @@ mod tests {
         let mut env = lift_env(1);
         let err = env.expert_actions(&mut [0.0; 2 * UNIT_ACTION_DIM]);
         assert!(
-            matches!(&err, Err(LearnError::NoExpert { reason }) if reason.contains("mission plan")),
+            matches!(&err, Err(EnvError::NoExpert { reason }) if reason.contains("mission plan")),
             "{err:?}"
         );
         let mut pendulum = PendulumVecEnv::new(2);

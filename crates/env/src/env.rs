@@ -25,7 +25,7 @@
 
 use moonhaul_coord::{ClampReport, ClampTally};
 
-use crate::LearnError;
+use crate::EnvError;
 
 /// One batched step's outputs, reused across steps (allocate once with [`VecStep::new`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -86,6 +86,12 @@ pub trait VecEnv {
         vec![0.0; self.action_dim()]
     }
 
+    /// Steps after which an episode is cut by its time limit (rsl_rl's `max_episode_length`),
+    /// where the task has one; default none.
+    fn max_episode_steps(&self) -> Option<u64> {
+        None
+    }
+
     /// Metadata the exported policy must carry for a runtime to run it as trained (the phase
     /// tasks' action map and its version); default none.
     fn policy_metadata(&self) -> Vec<(String, String)> {
@@ -95,12 +101,8 @@ pub trait VecEnv {
     /// Reseeds every env's randomness from `seed` (same seed, same initial states) and starts
     /// new episodes; writes the first observations into `obs` (`[num_envs * obs_dim]`) and
     /// `critic_obs` (`[num_envs * critic_obs_dim]`).
-    fn reset(
-        &mut self,
-        seed: u64,
-        obs: &mut [f64],
-        critic_obs: &mut [f64],
-    ) -> Result<(), LearnError>;
+    fn reset(&mut self, seed: u64, obs: &mut [f64], critic_obs: &mut [f64])
+        -> Result<(), EnvError>;
 
     /// Starts a new episode in env `index` alone, drawing from its current random stream;
     /// writes its first observations into `obs` (`[obs_dim]`) and `critic_obs`
@@ -110,21 +112,21 @@ pub trait VecEnv {
         index: usize,
         obs: &mut [f64],
         critic_obs: &mut [f64],
-    ) -> Result<(), LearnError>;
+    ) -> Result<(), EnvError>;
 
     /// Advances every env by one control step with `actions` (`[num_envs * action_dim]`),
     /// auto-resetting finished episodes as described in the [module docs](self).
-    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError>;
+    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), EnvError>;
 
     /// Writes every row's expert raw action for the current state into `actions`
     /// (`[num_envs * action_dim]`, the policy's action space): the labels DAgger
-    /// ([`crate::distill`]) clones. An expert may be stateful (the phase tasks' scripted
+    /// (`moonhaul_learn::distill`) clones. An expert may be stateful (the phase tasks' scripted
     /// expert is), so ask once per step, before [`VecEnv::step`], from the first step of the
     /// episodes on; a second call before the next step gives the same labels. Default: an
     /// error, the task has no expert.
-    fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), LearnError> {
+    fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), EnvError> {
         let _ = actions;
-        Err(LearnError::NoExpert {
+        Err(EnvError::NoExpert {
             reason: format!("{} has no scripted expert", std::any::type_name::<Self>()),
         })
     }
@@ -180,11 +182,11 @@ impl PipelineStats {
 }
 
 /// Checks a flat batch's length: shared by every [`VecEnv`] implementation.
-pub fn check_len(what: &'static str, data: &[f64], expected: usize) -> Result<(), LearnError> {
+pub fn check_len(what: &'static str, data: &[f64], expected: usize) -> Result<(), EnvError> {
     if data.len() == expected {
         Ok(())
     } else {
-        Err(LearnError::Shape {
+        Err(EnvError::Shape {
             what,
             expected,
             found: data.len(),

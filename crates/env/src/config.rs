@@ -25,16 +25,16 @@ pub struct TrainConfig {
     pub reward: Option<RewardConfig>,
     /// The simulated world of the phase tasks; absent for benchmark tasks.
     pub world: Option<WorldConfig>,
-    /// Warm start from the scripted expert before PPO ([`crate::distill`]); absent: PPO from
-    /// scratch. Not in the paper.
+    /// Warm start from the scripted expert before PPO (`moonhaul_learn::distill`); absent: PPO
+    /// from scratch. Not in the paper.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub warm_start: Option<WarmStartConfig>,
 }
 
-/// The warm start of [`crate::distill`]: DAgger from the scripted expert, then the critic fitted
-/// to the cloned actor's returns before PPO touches either. None of it is in the paper (which
-/// trains from scratch); every value here is a training choice, bounded so a config cannot
-/// exhaust memory or run forever before PPO's first iteration.
+/// The warm start of `moonhaul_learn::distill`: DAgger from the scripted expert, then the critic
+/// fitted to the cloned actor's returns before PPO touches either. None of it is in the paper
+/// (which trains from scratch); every value here is a training choice, bounded so a config
+/// cannot exhaust memory or run forever before PPO's first iteration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WarmStartConfig {

@@ -1,7 +1,7 @@
 //! Replays gymnasium's own Pendulum-v1 trajectories (`tests/data/pendulum_v1.json`, made by
 //! `tests/data/gen_pendulum_fixture.py`) through the Rust implementation.
 
-use moonhaul_learn::pendulum::{Pendulum, MAX_EPISODE_STEPS};
+use moonhaul_env::pendulum::{Pendulum, MAX_EPISODE_STEPS};
 use serde_json::Value;
 
 fn f(v: &Value) -> f64 {

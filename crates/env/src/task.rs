@@ -19,7 +19,7 @@ use crate::config::{Task, TrainConfig};
 use crate::env::VecEnv;
 use crate::pendulum::PendulumVecEnv;
 use crate::phase_env::{HandOverStarts, PhaseVecEnv};
-use crate::LearnError;
+use crate::EnvError;
 
 /// `num_envs` environments of the config's task: pendulums, or simulated worlds of a phase
 /// task (two rows each, one per unit; see [`crate::phase_env`]), with the scripted expert of
@@ -29,15 +29,18 @@ use crate::LearnError;
 /// `randomization.payloads`, so every world carries it and the action map is built around its
 /// grasp. It is an argument, not a config field, because configs name payloads only by their
 /// shipped names; a run trained on a file needs the same file again to resume or export.
+///
+/// The env is `Send`, so a caller may step it on a thread of its own (the Python extension
+/// steps it with the interpreter's lock released).
 pub fn make_env(
     config: &TrainConfig,
     num_envs: usize,
     payload_file: Option<&Path>,
-) -> Result<Box<dyn VecEnv>, LearnError> {
+) -> Result<Box<dyn VecEnv + Send>, EnvError> {
     let task = config.run.task;
     let phase = match task {
         Task::Pendulum if payload_file.is_some() => {
-            return Err(LearnError::InvalidConfig {
+            return Err(EnvError::InvalidConfig {
                 field: "run.task".into(),
                 reason: "the pendulum task carries no payload; a payload file needs a robot task"
                     .into(),
@@ -49,7 +52,7 @@ pub fn make_env(
         Task::Place => Some(Phase::Place),
         Task::Mission => None,
     };
-    let missing = |section: &str| LearnError::InvalidConfig {
+    let missing = |section: &str| EnvError::InvalidConfig {
         field: section.into(),
         reason: format!("the {} task needs it", task.name()),
     };
@@ -91,7 +94,8 @@ pub fn make_env(
         config.run.threads,
     )?
     .with_handover_starts(starts)?;
-    // The scripted expert DAgger clones (crate::distill), only where a warm start asks for it.
+    // The scripted expert DAgger clones (moonhaul_learn::distill), only where a warm start asks
+    // for it.
     if let Some(warm) = &config.warm_start {
         env = env.with_expert(MissionPlan::load(&warm.mission)?);
     }
@@ -144,6 +148,7 @@ mod tests {
             }
             let env = make_env(&config, 3, None).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(env.num_envs(), rows, "{name}");
+            assert!(env.max_episode_steps().is_some_and(|n| n > 0), "{name}");
         }
     }
 

@@ -12,7 +12,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::env::{check_len, VecEnv, VecStep};
-use crate::LearnError;
+use crate::EnvError;
 
 /// Angular speed limit, rad/s.
 pub const MAX_SPEED_RADPS: f64 = 8.0;
@@ -122,6 +122,10 @@ impl VecEnv for PendulumVecEnv {
         ACTION_DIM
     }
 
+    fn max_episode_steps(&self) -> Option<u64> {
+        Some(u64::from(MAX_EPISODE_STEPS))
+    }
+
     /// The pendulum has no privileged state: the critic sees the observation.
     fn critic_obs_dim(&self) -> usize {
         OBS_DIM
@@ -132,7 +136,7 @@ impl VecEnv for PendulumVecEnv {
         seed: u64,
         obs: &mut [f64],
         critic_obs: &mut [f64],
-    ) -> Result<(), LearnError> {
+    ) -> Result<(), EnvError> {
         let n = self.envs.len();
         check_len("observation batch", obs, n * OBS_DIM)?;
         check_len("critic observation batch", critic_obs, n * OBS_DIM)?;
@@ -151,11 +155,11 @@ impl VecEnv for PendulumVecEnv {
         index: usize,
         obs: &mut [f64],
         critic_obs: &mut [f64],
-    ) -> Result<(), LearnError> {
+    ) -> Result<(), EnvError> {
         check_len("observation", obs, OBS_DIM)?;
         check_len("critic observation", critic_obs, OBS_DIM)?;
         let n = self.envs.len();
-        let env = self.envs.get_mut(index).ok_or(LearnError::Shape {
+        let env = self.envs.get_mut(index).ok_or(EnvError::Shape {
             what: "env index",
             expected: n,
             found: index,
@@ -167,7 +171,7 @@ impl VecEnv for PendulumVecEnv {
         Ok(())
     }
 
-    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), LearnError> {
+    fn step(&mut self, actions: &[f64], out: &mut VecStep) -> Result<(), EnvError> {
         let n = self.envs.len();
         check_len("action batch", actions, n * ACTION_DIM)?;
         check_len("observation buffer", &out.obs, n * OBS_DIM)?;
@@ -176,7 +180,7 @@ impl VecEnv for PendulumVecEnv {
         let final_critic = &out.final_critic_obs;
         check_len("final critic observation buffer", final_critic, n * OBS_DIM)?;
         if actions.iter().any(|a| !a.is_finite()) {
-            return Err(LearnError::NonFinite {
+            return Err(EnvError::NonFinite {
                 what: "pendulum action".into(),
             });
         }
@@ -257,19 +261,19 @@ mod tests {
         let mut out = VecStep::new(2, OBS_DIM, OBS_DIM);
         assert!(matches!(
             env.step(&[0.0], &mut out),
-            Err(LearnError::Shape { .. })
+            Err(EnvError::Shape { .. })
         ));
         let mut narrow = VecStep::new(2, OBS_DIM, OBS_DIM - 1);
         assert!(matches!(
             env.step(&[0.0, 0.0], &mut narrow),
-            Err(LearnError::Shape {
+            Err(EnvError::Shape {
                 what: "critic observation buffer",
                 ..
             })
         ));
         assert!(matches!(
             env.step(&[0.0, f64::NAN], &mut out),
-            Err(LearnError::NonFinite { .. })
+            Err(EnvError::NonFinite { .. })
         ));
     }
 }
