@@ -66,9 +66,7 @@ use anyhow::{bail, Context, Result};
 use moonhaul_coord::message::{FaultKind, StopReason};
 use moonhaul_coord::HoldReason;
 use moonhaul_core::state::Phase;
-use moonhaul_deploy::mission_log::{
-    read_metadata, read_unit_log_contents, read_world_log_contents, LogEnd,
-};
+use moonhaul_deploy::mission_log::{read_unit_log_contents, read_world_log_contents, LogEnd};
 use moonhaul_deploy::record::{TickRecord, WorldFrame};
 use plotters::prelude::*;
 
@@ -868,13 +866,8 @@ fn read_unit_logs(folder: &Path, team: usize, unread: &mut Vec<String>) -> UnitL
             ));
         }
         any = true;
-        match read_metadata(path) {
-            Ok(m) => {
-                if let Some(c) = m.get("controller") {
-                    controllers.push(format!("unit {i} {c}"));
-                }
-            }
-            Err(e) => unread.push(format!("{e}: its controller is not known")),
+        if let Some(c) = contents.metadata.get("controller") {
+            controllers.push((i, c.clone()));
         }
         for r in &contents.records {
             let running =
@@ -898,15 +891,17 @@ fn read_unit_logs(folder: &Path, team: usize, unread: &mut Vec<String>) -> UnitL
     }
 }
 
-/// The controller every unit flew (`unit <i> <name>` each), or each unit's when they differ.
-fn agreed_controller(per_unit: Vec<String>) -> Option<String> {
-    let name = |s: &str| s.splitn(3, ' ').nth(2).unwrap_or("").to_owned();
-    let first = name(per_unit.first()?);
-    if per_unit.iter().all(|u| name(u) == first) {
-        Some(first)
-    } else {
-        Some(per_unit.join(", "))
+/// The controller every unit flew (unit index, name), or each unit's when they differ.
+fn agreed_controller(per_unit: Vec<(usize, String)>) -> Option<String> {
+    let (_, first) = per_unit.first()?;
+    if per_unit.iter().all(|(_, c)| c == first) {
+        return Some(first.clone());
     }
+    let each: Vec<String> = per_unit
+        .iter()
+        .map(|(i, c)| format!("unit {i} {c}"))
+        .collect();
+    Some(each.join(", "))
 }
 
 /// The `unit-<i>.mcap` files of `folder` whose unit is not one of the team's, named.

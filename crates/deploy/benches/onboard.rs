@@ -386,14 +386,7 @@ async fn ros2_tick(ticks: usize) {
     const BLOCK: usize = 100;
     let keys = KeyFile::generate("moonhaul", 2, 1).unwrap();
     let port = network::free_loopback_port().unwrap();
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"peer\"").unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
-        .unwrap();
+    let config = network::peer_config(&[], &[format!("tcp/127.0.0.1:{port}")]).unwrap();
     let ros_side = zenoh::open(config).await.unwrap();
     let received = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
     let count = received.clone();

@@ -345,6 +345,28 @@ impl Drop for Dictionary {
     }
 }
 
+/// The zenoh configuration every moonhaul session starts from (the team's, the ROS 2
+/// publisher's, a test's bare peer): peer mode, no multicast scouting (endpoints are explicit),
+/// `connect` dialled and retried in the background until it answers (a peer started before the
+/// other), `listen` opened. An error names the key.
+pub fn peer_config(connect: &[String], listen: &[String]) -> Result<zenoh::Config, String> {
+    let mut config = zenoh::Config::default();
+    let list = |v: &[String]| serde_json::to_string(v).map_err(|e| e.to_string());
+    for (key, value) in [
+        ("mode", "\"peer\"".to_owned()),
+        ("scouting/multicast/enabled", "false".to_owned()),
+        ("connect/endpoints", list(connect)?),
+        ("listen/endpoints", list(listen)?),
+        ("connect/timeout_ms", "-1".to_owned()),
+        ("connect/exit_on_failure", "false".to_owned()),
+    ] {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| format!("config {key}: {e}"))?;
+    }
+    Ok(config)
+}
+
 /// Opens a peer session on `settings` as `access`'s role: authenticated, under the team's
 /// access-control list, with the transport's frame cap.
 pub async fn open(
@@ -360,21 +382,14 @@ pub async fn open(
             }
         })?;
     }
-    let list = |v: &[String]| serde_json::to_string(v).map_err(zerr);
     let dictionary = Dictionary::write(access)?;
-    let mut config = zenoh::Config::default();
+    let mut config =
+        peer_config(&settings.connect, &settings.listen).map_err(NetworkError::Zenoh)?;
     let set = |c: &mut zenoh::Config, key: &str, value: &str| {
         c.insert_json5(key, value)
             .map_err(|e| NetworkError::Zenoh(format!("config {key}: {e}")))
     };
     let string = |s: &str| serde_json::to_string(s).map_err(zerr);
-    set(&mut config, "mode", "\"peer\"")?;
-    set(&mut config, "scouting/multicast/enabled", "false")?;
-    set(&mut config, "connect/endpoints", &list(&settings.connect)?)?;
-    set(&mut config, "listen/endpoints", &list(&settings.listen)?)?;
-    // Keep retrying a peer that is not up yet (a unit started before the world).
-    set(&mut config, "connect/timeout_ms", "-1")?;
-    set(&mut config, "connect/exit_on_failure", "false")?;
     if let Some(zid) = &access.own.zid {
         set(&mut config, "id", &string(zid)?)?;
         // Of two units (or a unit and the world) that learn of each other by gossip, only the
@@ -945,14 +960,7 @@ mod tests {
         // all (zenoh's defaults).
         let stranger = KeyFile::generate("moonhaul", 2, 1).unwrap();
         let forged = session(&stranger, Role::Operator, &[endpoint(port)], &[]).await;
-        let mut plain = zenoh::Config::default();
-        plain.insert_json5("mode", "\"peer\"").unwrap();
-        plain
-            .insert_json5("scouting/multicast/enabled", "false")
-            .unwrap();
-        plain
-            .insert_json5("connect/endpoints", &format!("[\"{}\"]", endpoint(port)))
-            .unwrap();
+        let plain = peer_config(&[endpoint(port)], &[]).unwrap();
         let anonymous = zenoh::open(plain).await.unwrap();
         for outsider in [&forged, &anonymous] {
             assert!(!connected(outsider, Duration::from_secs(2)).await);

@@ -287,11 +287,10 @@ impl Randomization {
                 format!("needs 1 to 64 entries, got {}", self.payloads.len()),
             )
         })?;
-        if self.payloads.contains(&PayloadKind::Custom)
-            || self
-                .payloads
-                .iter()
-                .any(|p| matches!(p, PayloadKind::Generated(_)))
+        if self
+            .payloads
+            .iter()
+            .any(|p| matches!(p, PayloadKind::Custom | PayloadKind::Generated(_)))
         {
             return Err(FieldError::new(
                 "payloads",

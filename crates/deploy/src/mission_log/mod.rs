@@ -62,7 +62,7 @@ pub use error::LogError;
 pub use inputs::LogInputs;
 pub(crate) use links::UnitLinks;
 pub use read::{
-    read_attachments, read_metadata, read_unit_log, read_unit_log_contents, read_world_log,
+    read_attachments, read_unit_log, read_unit_log_contents, read_world_log,
     read_world_log_contents, LogContents, LogEnd,
 };
 pub use topics::{

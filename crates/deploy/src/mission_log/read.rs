@@ -20,11 +20,14 @@ use crate::record::{TickRecord, WorldFrame};
 /// truncated file.
 const MAX_RECORD_BYTES: usize = 64 << 20;
 
-/// What a reader got from a log: its records, in file order, and how the file ended.
+/// What a reader got from a log: its records, in file order, how the file ended, and the
+/// log's `moonhaul` metadata (`unit`, a unit log's `controller`, …; written before any record,
+/// so a truncated log has it too; empty for a log without it).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LogContents<T> {
     pub records: Vec<T>,
     pub end: LogEnd,
+    pub metadata: BTreeMap<String, String>,
 }
 
 /// How a log file ended.
@@ -67,28 +70,17 @@ pub fn read_world_log_contents(path: &Path) -> Result<LogContents<WorldFrame>, L
 /// by the rules of the readers above.
 pub fn read_attachments(path: &Path) -> Result<LogContents<(String, Vec<u8>)>, LogError> {
     let mut out = Vec::new();
-    let end = read_records(path, MAX_LOG_BYTES, |_, record| {
+    let (end, metadata) = read_records(path, MAX_LOG_BYTES, |_, record| {
         if let Record::Attachment { header, data, .. } = record {
             out.push((header.name, data.into_owned()));
         }
         Ok(())
     })?;
-    Ok(LogContents { records: out, end })
-}
-
-/// The `moonhaul` metadata of a log (`unit`, `controller`, …), by the rules of the readers
-/// above; empty when the log has none.
-pub fn read_metadata(path: &Path) -> Result<BTreeMap<String, String>, LogError> {
-    let mut out = BTreeMap::new();
-    read_records(path, MAX_LOG_BYTES, |_, record| {
-        if let Record::Metadata(m) = record {
-            if m.name == "moonhaul" {
-                out.extend(m.metadata);
-            }
-        }
-        Ok(())
-    })?;
-    Ok(out)
+    Ok(LogContents {
+        records: out,
+        end,
+        metadata,
+    })
 }
 
 /// Which channels a reader decodes, and what to call them in errors.
@@ -144,7 +136,7 @@ pub(super) fn read_json_topic<T: DeserializeOwned>(
     let mut channels: HashMap<u16, Option<String>> = HashMap::new();
     let mut topics: Vec<String> = Vec::new();
     let mut out = Vec::new();
-    let end = read_records(path, max_bytes, |record, parsed| {
+    let (end, metadata) = read_records(path, max_bytes, |record, parsed| {
         match parsed {
             Record::Channel(channel) => {
                 let wanted = (filter.matches)(&channel.topic);
@@ -200,12 +192,16 @@ pub(super) fn read_json_topic<T: DeserializeOwned>(
             topics,
         });
     }
-    Ok(LogContents { records: out, end })
+    Ok(LogContents {
+        records: out,
+        end,
+        metadata,
+    })
 }
 
 /// Streams the records of the MCAP file at `path` (those inside chunks included, decompressed)
 /// to `visit` with their 1-based index; refuses a file larger than `max_bytes` or one that is
-/// not a regular file before reading.
+/// not a regular file before reading. Returns how the file ended and its `moonhaul` metadata.
 ///
 /// A file that ends inside a record, or without its footer, is taken as truncated (what a
 /// killed writer leaves) and every complete record of it visited. Anything else that is wrong is
@@ -216,7 +212,7 @@ fn read_records(
     path: &Path,
     max_bytes: u64,
     mut visit: impl FnMut(usize, Record<'_>) -> Result<(), LogError>,
-) -> Result<LogEnd, LogError> {
+) -> Result<(LogEnd, BTreeMap<String, String>), LogError> {
     let file_bytes = check_readable(path, max_bytes)?;
     let read_error = |error| LogError::Read {
         path: path.to_owned(),
@@ -239,6 +235,7 @@ fn read_records(
     let mut record = 0usize;
     let mut read_total = 0u64;
     let mut footer = false;
+    let mut metadata = BTreeMap::new();
     while let Some(event) = reader.next_event() {
         let event = match event {
             Ok(event) => event,
@@ -264,17 +261,23 @@ fn read_records(
                 let parsed =
                     mcap::parse_record(opcode, data).map_err(|e| corrupt(record, e.to_string()))?;
                 footer |= matches!(parsed, Record::Footer(_));
+                if let Record::Metadata(m) = &parsed {
+                    if m.name == "moonhaul" {
+                        metadata.extend(m.metadata.clone());
+                    }
+                }
                 visit(record, parsed)?;
             }
         }
     }
-    Ok(if footer {
+    let end = if footer {
         LogEnd::Finished
     } else {
         LogEnd::Truncated {
             file_bytes: read_total.max(file_bytes),
         }
-    })
+    };
+    Ok((end, metadata))
 }
 
 /// One `read` that retries when interrupted; 0 only at the end of the file.

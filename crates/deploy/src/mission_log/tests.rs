@@ -264,7 +264,7 @@ fn a_unit_log_says_what_flew_it_and_attaches_the_policies() {
     let mut log = UnitLog::create(&learned, 1, &inputs_learned).unwrap();
     log.write(&tick(1, 1)).unwrap();
     log.finish().unwrap();
-    let metadata = read_metadata(&learned).unwrap();
+    let metadata = read_unit_log_contents(&learned).unwrap().metadata;
     assert_eq!(metadata["unit"], "1");
     assert_eq!(metadata["controller"], "learned");
     let attached = read_attachments(&learned).unwrap().records;
@@ -282,13 +282,19 @@ fn a_unit_log_says_what_flew_it_and_attaches_the_policies() {
         .unwrap()
         .finish()
         .unwrap();
-    assert_eq!(read_metadata(&scripted).unwrap()["controller"], "scripted");
+    assert_eq!(
+        read_unit_log_contents(&scripted).unwrap().metadata["controller"],
+        "scripted"
+    );
     let plain = dir.path().join("unit-2.mcap");
     UnitLog::create(&plain, 2, &inputs())
         .unwrap()
         .finish()
         .unwrap();
-    assert!(!read_metadata(&plain).unwrap().contains_key("controller"));
+    assert!(!read_unit_log_contents(&plain)
+        .unwrap()
+        .metadata
+        .contains_key("controller"));
     // A policy file that cannot be read is named before any log is created.
     let missing = dir.path().join("lift.safetensors");
     let e = inputs()

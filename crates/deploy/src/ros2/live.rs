@@ -230,23 +230,10 @@ impl Ros2Publisher {
         team_size: usize,
     ) -> Result<Self, LiveError> {
         let topics = UnitTopics::new(urdf, &settings.namespace).map_err(LiveError::Model)?;
-        let mut config = zenoh::Config::default();
-        let set = |c: &mut zenoh::Config, key: &str, value: String| {
-            c.insert_json5(key, &value)
-                .map_err(|e| LiveError::Zenoh(format!("config {key}: {e}")))
-        };
-        // rmw_zenoh's session defaults: a peer dialling the router, no multicast scouting.
-        set(&mut config, "mode", "\"peer\"".into())?;
-        set(&mut config, "scouting/multicast/enabled", "false".into())?;
-        set(
-            &mut config,
-            "connect/endpoints",
-            serde_json::to_string(&settings.connect).map_err(zerr)?,
-        )?;
-        set(&mut config, "listen/endpoints", "[]".into())?;
-        // A router that is not up yet is retried in the background; the unit does not wait.
-        set(&mut config, "connect/timeout_ms", "-1".into())?;
-        set(&mut config, "connect/exit_on_failure", "false".into())?;
+        // rmw_zenoh's session defaults: a peer dialling the router, no multicast scouting; a
+        // router that is not up yet is retried in the background, the unit does not wait.
+        let config =
+            crate::network::peer_config(&settings.connect, &[]).map_err(LiveError::Zenoh)?;
         let session = zenoh::open(config).await.map_err(zerr)?;
         let zid = session.zid().to_string();
         let domain = settings.domain_id;
@@ -651,14 +638,7 @@ mod tests {
     async fn every_offered_tick_is_published_once_in_order_by_an_idle_priority_thread() {
         let port = crate::network::free_loopback_port().unwrap();
         let endpoint = format!("tcp/127.0.0.1:{port}");
-        let mut config = zenoh::Config::default();
-        config.insert_json5("mode", "\"peer\"").unwrap();
-        config
-            .insert_json5("scouting/multicast/enabled", "false")
-            .unwrap();
-        config
-            .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-            .unwrap();
+        let config = crate::network::peer_config(&[], std::slice::from_ref(&endpoint)).unwrap();
         let ros_side = zenoh::open(config).await.unwrap();
         let joint_states = ros_side
             .declare_subscriber("0/unit_0/joint_states/**")

@@ -124,28 +124,26 @@ impl SceneModel {
             let kind = PayloadKind::Generated(i);
             let name = self.payload_name(kind);
             let path = PathBuf::from(format!("[randomization.generated_payloads] member {name}"));
-            let mut last = None;
-            for _ in 0..ATTEMPTS {
+            let mut attempt = || {
                 let text = family.draw(&mut rng).urdf(&name);
                 let robot = parse_urdf(&text).map_err(|e| SimError::Model {
                     path: path.clone(),
                     reason: e.to_string(),
                 })?;
-                match self.payload_model(&path, &robot) {
-                    Ok(payload) => {
-                        self.payloads.insert(kind, payload);
-                        last = None;
-                        break;
-                    }
-                    Err(e) => last = Some(e),
+                self.payload_model(&path, &robot)
+            };
+            let mut result = attempt();
+            for _ in 1..ATTEMPTS {
+                if result.is_ok() {
+                    break;
                 }
+                result = attempt();
             }
-            if let Some(e) = last {
-                return Err(SimError::Config {
-                    field: "randomization.generated_payloads",
-                    reason: format!("{ATTEMPTS} draws of {name} in a row were not graspable: {e}"),
-                });
-            }
+            let payload = result.map_err(|e| SimError::Config {
+                field: "randomization.generated_payloads",
+                reason: format!("{ATTEMPTS} draws of {name} in a row were not graspable: {e}"),
+            })?;
+            self.payloads.insert(kind, payload);
         }
         Ok(())
     }
