@@ -14,6 +14,12 @@
 //! `LIBTORCH_USE_PYTORCH=1` and the venv's `python`; `moonhaul-learn`'s build script embeds its
 //! library directory as an rpath, so nothing needs `LD_LIBRARY_PATH`.
 //!
+//! The same venv gets the Python trainer path: stock rsl_rl (pinned) and the `moonhaul` Python
+//! package (`crates/py`, the phase environments as an rsl_rl `VecEnv`), built with maturin
+//! from this checkout in release mode and installed editable, so `python -m moonhaul.train`
+//! works in the venv after `cargo xtask setup`; `cargo xtask test` runs its pytest suite after
+//! the Rust tests.
+//!
 //! `MOONHAUL_VENV` overrides the venv location (CI keeps one outside the clone). The tests also
 //! get a small second venv with the pinned ROS 2 tooling (`rosbags`, `eclipse-zenoh`; a few MB),
 //! `MOONHAUL_ROS2_VENV` or `.venv-ros2/`, whose python they find in `MOONHAUL_ROS2_PYTHON`.
@@ -34,14 +40,27 @@ const TORCH_VERSION: &str = "2.13.0";
 /// the zenoh release moonhaul links.
 const ROS2_TEST_PACKAGES: [&str; 2] = ["rosbags==0.11.9", "eclipse-zenoh==1.10.2"];
 
+/// The Python trainer path, beside PyTorch in the project venv: the rsl_rl release
+/// `crates/py/python/moonhaul/rsl.py` is written against, its TensorDict, the extension's
+/// builder and the test runner, all pinned.
+const PYTHON_PACKAGES: [&str; 4] = [
+    "rsl-rl-lib==5.5.1",
+    "tensordict==0.15.3",
+    "maturin==1.16.0",
+    "pytest==9.2.0",
+];
+
 const USAGE: &str =
     "usage: cargo xtask <demo|test|setup|train-all|bench|vendor-check|cargo ARGS...>
 
   demo          run the main job: lift, transport and place a payload in simulation with
                 two wheel-arm units (the learned phase policies through gate and clamp), and
                 bring up a unit's CAN drives (emulated); see runs/demo/
-  test [ARGS]   run every test in the workspace (extra ARGS go to `cargo test`)
-  setup         only install libtorch (PyTorch from PyPI) into the project venv
+  test [ARGS]   run every test: the workspace's, then the Python package's (crates/py/tests,
+                pytest); extra ARGS go to `cargo test` and skip the Python tests
+  setup         only the set-up: PyTorch from PyPI (libtorch for moonhaul-learn), stock
+                rsl_rl and the `moonhaul` Python package (built from crates/py) into the
+                project venv, .venv or MOONHAUL_VENV
   train-all     retrain the bundled policies: capture the scripted expert's hand-overs
                 (runs/handovers/scripted.json), clone the expert into lift, transport and
                 place with configs/train/<phase>_warm.toml's warm start (no PPO) into
@@ -62,7 +81,7 @@ fn main() -> ExitCode {
     let result = match args.first().map(String::as_str) {
         Some("demo") => demo(),
         Some("test") => test(&args[1..]),
-        Some("setup") => setup().map(|_| ()),
+        Some("setup") => setup().and_then(|venv| setup_python(&venv)),
         Some("train-all") => train_all(),
         Some("bench") => bench(&args[1..]),
         Some("vendor-check") => vendor_check::vendor_check(),
@@ -112,6 +131,25 @@ fn setup() -> Result<PathBuf, String> {
     Ok(venv)
 }
 
+/// Installs stock rsl_rl into `venv` (which [`setup`] made) and builds and installs the
+/// `moonhaul` Python package from `crates/py` (release; cargo's incremental build makes a
+/// repeat quick).
+fn setup_python(venv: &Path) -> Result<(), String> {
+    ensure_venv(venv, &PYTHON_PACKAGES, ".moonhaul-python")?;
+    stage(
+        "building the moonhaul Python package (crates/py) into the venv (first time: a \
+         release build of the simulator, minutes on 2 cores)",
+        || {
+            // maturin runs cargo with the venv's python for pyo3's build script.
+            run(Command::new(venv.join("bin").join("maturin"))
+                .current_dir(workspace_root().join("crates").join("py"))
+                .env("VIRTUAL_ENV", venv)
+                .env("PATH", path_with_venv(venv))
+                .args(["develop", "--release", "--quiet"]))
+        },
+    )
+}
+
 /// Creates `venv` and pip-installs `packages` unless a previous run completed exactly that: the
 /// `stamp` file, holding the package list, is written only after pip succeeded, so an
 /// interrupted install is retried and a changed list reinstalled.
@@ -146,18 +184,23 @@ fn ensure_venv(venv: &Path, packages: &[&str], stamp: &str) -> Result<(), String
 /// A `cargo` command with the environment torch-sys needs to find the venv's libtorch.
 fn cargo_command(venv: &Path) -> Command {
     let cargo = env::var_os("CARGO").unwrap_or_else(|| OsString::from("cargo"));
-    let mut path = OsString::from(venv.join("bin"));
-    if let Some(old) = env::var_os("PATH") {
-        path.push(":");
-        path.push(old);
-    }
     let mut command = Command::new(cargo);
     command
         .current_dir(workspace_root())
         .env("LIBTORCH_USE_PYTORCH", "1")
         .env("VIRTUAL_ENV", venv)
-        .env("PATH", path);
+        .env("PATH", path_with_venv(venv));
     command
+}
+
+/// `PATH` with the venv's `bin/` first: its `python` is the one builds and tests find.
+fn path_with_venv(venv: &Path) -> OsString {
+    let mut path = OsString::from(venv.join("bin"));
+    if let Some(old) = env::var_os("PATH") {
+        path.push(":");
+        path.push(old);
+    }
+    path
 }
 
 fn cargo(venv: &Path, args: &[String]) -> Result<(), String> {
@@ -175,6 +218,7 @@ fn setup_ros2() -> Result<PathBuf, String> {
 
 fn test(extra: &[String]) -> Result<(), String> {
     let venv = setup()?;
+    setup_python(&venv)?;
     let ros2_python = setup_ros2()?;
     stage(
         "building and running every test of the workspace (the first build compiles the \
@@ -186,6 +230,30 @@ fn test(extra: &[String]) -> Result<(), String> {
                 .env("MOONHAUL_XTASK_TEST", "1")
                 .args(["test", "--workspace"])
                 .args(extra))
+        },
+    )?;
+    if !extra.is_empty() {
+        eprintln!(
+            "xtask: arguments given, so only `cargo test`; the Python tests run without them"
+        );
+        return Ok(());
+    }
+    // The Python trainer path against the extension setup_python built: (a)-(c) of the
+    // torchrun checks, a pendulum run that learns, the export to a policy file, which the
+    // moonhaul binary the Rust tests just built must read.
+    let target = env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("target"));
+    stage(
+        "running the Python package's tests (crates/py/tests: torchrun with 2 processes, \
+         about a minute)",
+        || {
+            run(Command::new(venv.join("bin").join("python"))
+                .current_dir(workspace_root())
+                .env("PATH", path_with_venv(&venv))
+                .env("MOONHAUL_XTASK_TEST", "1")
+                .env("MOONHAUL_BIN", target.join("debug").join("moonhaul"))
+                .args(["-m", "pytest", "-q", "crates/py/tests"]))
         },
     )
 }

@@ -28,6 +28,13 @@ pub enum EnvError {
     /// desynchronise its stateful scripts.
     #[error("no expert labels: {reason}")]
     NoExpert { reason: String },
+    /// A file the environment reads (a config named by another, for its digest) is missing,
+    /// not a file, or too large.
+    #[error(transparent)]
+    Input(#[from] moonhaul_core::input::InputError),
+    /// An exported actor does not make a valid onboard policy (shapes, non-finite values).
+    #[error(transparent)]
+    Policy(#[from] moonhaul_core::policy::PolicyError),
     /// An environment was given, or produced, NaN or infinity.
     #[error("{what} is not finite")]
     NonFinite { what: String },

@@ -17,8 +17,10 @@
 pub mod config;
 pub mod env;
 pub mod error;
+pub mod export;
 pub mod pendulum;
 pub mod phase_env;
+pub mod provenance;
 pub mod reward;
 pub mod task;
 

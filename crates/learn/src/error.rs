@@ -85,6 +85,8 @@ impl From<moonhaul_env::EnvError> for LearnError {
             },
             EnvError::NoExpert { reason } => LearnError::NoExpert { reason },
             EnvError::NonFinite { what } => LearnError::NonFinite { what },
+            EnvError::Input(e) => LearnError::Input(e),
+            EnvError::Policy(e) => LearnError::Policy(e),
         }
     }
 }

@@ -1,14 +1,11 @@
-//! Export of a trained actor to the onboard policy file of [`moonhaul_core::policy`]: the
-//! actor's layers (the Gaussian mean; the std is training-only), the actor's observation
-//! normalizer with rsl_rl's ε folded into the std, and the env's action map. The critic and its
-//! normalizer are training-only: the robot never sees the critic's privileged observations.
+//! Export of `moonhaul-train`'s tch actor to the onboard policy file: its tensors as the core's,
+//! assembled by [`moonhaul_env::export::assemble_policy`] (shared with the rsl_rl path).
 
 use std::collections::BTreeMap;
 
-use moonhaul_core::policy::{
-    ActionAffine, Activation, Linear, ObsNormalizer, Policy, PolicyMetadata, Tensor as PolicyTensor,
-};
+use moonhaul_core::policy::{Linear, ObsNormalizer, Policy, Tensor as PolicyTensor};
 use moonhaul_core::state::Phase;
+use moonhaul_env::export::assemble_policy;
 use tch::Tensor;
 
 use crate::actor_critic::ActorCritic;
@@ -18,10 +15,6 @@ fn to_policy_tensor(t: &Tensor) -> Result<PolicyTensor, LearnError> {
     let shape = t.size().iter().map(|&d| d as usize).collect();
     let data: Vec<f32> = Vec::try_from(&t.flatten(0, -1))?;
     Ok(PolicyTensor::new(shape, data)?)
-}
-
-fn vector(values: &[f64]) -> PolicyTensor {
-    PolicyTensor::vector(values.iter().map(|&v| v as f32).collect())
 }
 
 /// The actor as a validated core [`Policy`]. `action_scale`/`action_offset` are the env's
@@ -47,34 +40,21 @@ pub fn export_policy(
             })
         })
         .collect::<Result<Vec<_>, LearnError>>()?;
-    let obs_dim = layers.first().map_or(0, |l| l.weight.shape()[1]);
-    let obs_norm = match policy.obs_normalizer() {
-        Some(n) => ObsNormalizer {
-            mean: to_policy_tensor(n.mean())?,
-            std: to_policy_tensor(&n.export_std())?,
-        },
-        None => ObsNormalizer {
-            mean: vector(&vec![0.0; obs_dim]),
-            std: vector(&vec![1.0; obs_dim]),
-        },
-    };
-    let hidden_sizes = layers
-        .iter()
-        .take(layers.len().saturating_sub(1))
-        .map(|l| l.bias.shape()[0])
-        .collect();
-    let metadata = PolicyMetadata {
+    let obs_norm = policy
+        .obs_normalizer()
+        .map(|n| {
+            Ok::<_, LearnError>(ObsNormalizer {
+                mean: to_policy_tensor(n.mean())?,
+                std: to_policy_tensor(&n.export_std())?,
+            })
+        })
+        .transpose()?;
+    Ok(assemble_policy(
         phase,
-        obs_dim,
-        action_dim: action_scale.len(),
-        hidden_sizes,
-        activation: Activation::Elu,
-        obs_clip: None,
+        layers,
+        obs_norm,
+        action_scale,
+        action_offset,
         extra,
-    };
-    let action = ActionAffine {
-        scale: vector(action_scale),
-        offset: vector(action_offset),
-    };
-    Ok(Policy::new(metadata, layers, obs_norm, action)?)
+    )?)
 }

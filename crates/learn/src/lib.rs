@@ -30,10 +30,9 @@ pub mod mlp;
 pub mod normalizer;
 pub mod plot;
 pub mod ppo;
-pub mod provenance;
 pub mod runner;
 pub mod storage;
 pub mod trainer;
 
 pub use error::LearnError;
-pub use moonhaul_env::{config, env, pendulum, phase_env, reward, task, EnvError};
+pub use moonhaul_env::{config, env, pendulum, phase_env, provenance, reward, task, EnvError};

@@ -4,8 +4,8 @@
 
 use tch::{Kind, Tensor};
 
-/// rsl_rl's default ε, added to the std (not the variance).
-pub const EPS: f64 = 1e-2;
+/// rsl_rl's default ε, added to the std (not the variance); the exported file holds `std + ε`.
+pub const EPS: f64 = moonhaul_env::export::NORMALIZER_EPS;
 
 #[derive(Debug)]
 pub struct EmpiricalNormalizer {

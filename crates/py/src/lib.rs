@@ -17,10 +17,14 @@
 //! Python threads run meanwhile; the simulator itself runs on the config's `run.threads`
 //! threads or the count given at construction.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Mutex;
 
+use moonhaul_core::policy::{Linear, ObsNormalizer, Policy, Tensor as PolicyTensor};
 use moonhaul_env::config::TrainConfig;
+use moonhaul_env::export::assemble_policy;
+use moonhaul_env::task::export_identity;
 use moonhaul_env::{EnvError, VecEnv, VecStep};
 use pyo3::buffer::{Element, PyBuffer};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -35,6 +39,8 @@ fn py_err(e: EnvError) -> PyErr {
         | EnvError::Config(_)
         | EnvError::InvalidConfig { .. }
         | EnvError::HandOvers(_)
+        | EnvError::Input(_)
+        | EnvError::Policy(_)
         | EnvError::NonFinite { .. } => PyValueError::new_err(e.to_string()),
         _ => PyRuntimeError::new_err(e.to_string()),
     }
@@ -77,6 +83,8 @@ pub struct Env {
     config_json: String,
     /// The payload URDF every world carries instead of the sim config's payloads, if any.
     payload: Option<PathBuf>,
+    /// The loaded config: what an exported policy's provenance digests.
+    train: TrainConfig,
 }
 
 /// The writable, C-contiguous buffer `obj` of exactly `len` items of `T`, named `what` in errors.
@@ -102,6 +110,27 @@ fn buffer<T: Element>(
         )));
     }
     Ok(buf)
+}
+
+/// A float32 array (a CPU tensor's `.numpy()`, any layout) as a policy tensor; `what` names it
+/// in errors, `rank` is the number of dimensions it must have.
+fn policy_tensor(
+    py: Python<'_>,
+    obj: &Bound<'_, PyAny>,
+    what: &str,
+    rank: usize,
+) -> PyResult<PolicyTensor> {
+    let buf = PyBuffer::<f32>::get(obj)
+        .map_err(|e| PyValueError::new_err(format!("{what}: {e} (expected a float32 array)")))?;
+    if buf.shape().len() != rank {
+        return Err(PyValueError::new_err(format!(
+            "{what} has shape {:?}, expected {rank} dimensions",
+            buf.shape()
+        )));
+    }
+    let data = buf.to_vec(py)?;
+    PolicyTensor::new(buf.shape().to_vec(), data)
+        .map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
 }
 
 /// Writes `src` as f32 into `dst` (checked by [`buffer`] to hold `src.len()` items).
@@ -190,6 +219,7 @@ impl Env {
             reward_scale,
             config_json,
             payload,
+            train,
             inner: Mutex::new(Inner {
                 out: VecStep::new(n, o, c),
                 actions: vec![0.0; n * a],
@@ -310,11 +340,130 @@ impl Env {
     fn policy_metadata(&self) -> PyResult<Vec<(String, String)>> {
         Ok(self.lock()?.env.policy_metadata())
     }
+
+    /// Writes an ELU actor trained on this environment as moonhaul's onboard policy file at
+    /// `path` (atomically: a reader sees the old file or the new one), the file `moonhaul-unit`
+    /// and `moonhaul eval` fly. `weights[i]` (`[out, in]`) and `biases[i]` (`[out]`) are the
+    /// layers in order, float32; `obs_mean`/`obs_std` the actor's normalizer with its ε already
+    /// added to the std (both or neither: identity). The file records the task's identity and
+    /// observation layout, the action map, the config's digest and the source commit, and
+    /// `extra` (the trainer's provenance: who trained it, seed, iteration); `extra` cannot
+    /// override those. The file is validated (shapes chain, values finite) before it is
+    /// written.
+    #[pyo3(signature = (path, weights, biases, obs_mean=None, obs_std=None, extra=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn export_policy(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        weights: Vec<Bound<'_, PyAny>>,
+        biases: Vec<Bound<'_, PyAny>>,
+        obs_mean: Option<Bound<'_, PyAny>>,
+        obs_std: Option<Bound<'_, PyAny>>,
+        extra: Option<BTreeMap<String, String>>,
+    ) -> PyResult<()> {
+        if weights.len() != biases.len() || weights.is_empty() {
+            return Err(PyValueError::new_err(format!(
+                "{} weights and {} biases: expected one of each per layer, at least one layer",
+                weights.len(),
+                biases.len()
+            )));
+        }
+        let layers = weights
+            .iter()
+            .zip(&biases)
+            .enumerate()
+            .map(|(i, (w, b))| {
+                Ok(Linear {
+                    weight: policy_tensor(py, w, &format!("weights[{i}]"), 2)?,
+                    bias: policy_tensor(py, b, &format!("biases[{i}]"), 1)?,
+                })
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        let obs_norm = match (obs_mean, obs_std) {
+            (Some(mean), Some(std)) => Some(ObsNormalizer {
+                mean: policy_tensor(py, &mean, "obs_mean", 1)?,
+                std: policy_tensor(py, &std, "obs_std", 1)?,
+            }),
+            (None, None) => None,
+            _ => {
+                return Err(PyValueError::new_err(
+                    "obs_mean and obs_std come together (or neither, for no normalizer)",
+                ))
+            }
+        };
+        let mut metadata = extra.unwrap_or_default();
+        let (phase, identity) = export_identity(self.train.run.task);
+        metadata.extend(identity);
+        let (scale, offset, env_metadata) = {
+            let inner = self.lock()?;
+            (
+                inner.env.action_scale(),
+                inner.env.action_offset(),
+                inner.env.policy_metadata(),
+            )
+        };
+        metadata.extend(env_metadata);
+        metadata.insert(
+            "config_sha256".into(),
+            moonhaul_env::provenance::config_digest(&self.train).map_err(py_err)?,
+        );
+        metadata.insert("commit".into(), moonhaul_env::provenance::commit());
+        if let Some(payload) = &self.payload {
+            metadata.insert("payload_file".into(), payload.display().to_string());
+        }
+        let policy =
+            assemble_policy(phase, layers, obs_norm, &scale, &offset, metadata).map_err(py_err)?;
+        policy
+            .write_file(&path)
+            .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+}
+
+/// A policy file as the onboard runtime reads and runs it (`moonhaul_core::policy`): the check
+/// that an export flies what the trainer's actor computes, without leaving Python.
+#[pyclass(module = "moonhaul._native", name = "OnboardPolicy", frozen)]
+pub struct OnboardPolicy {
+    policy: Policy,
+}
+
+#[pymethods]
+impl OnboardPolicy {
+    /// Reads and validates the policy file at `path` (a `ValueError` naming the file and what
+    /// is wrong with it otherwise).
+    #[new]
+    fn new(path: PathBuf) -> PyResult<Self> {
+        Policy::from_file(&path)
+            .map(|policy| OnboardPolicy { policy })
+            .map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))
+    }
+
+    /// The file's metadata: `phase`, `obs_dim`, `action_dim` and every free-form entry.
+    #[getter]
+    fn metadata(&self) -> BTreeMap<String, String> {
+        let m = self.policy.metadata();
+        let mut out = m.extra.clone();
+        out.insert("phase".into(), m.phase.name().into());
+        out.insert("obs_dim".into(), m.obs_dim.to_string());
+        out.insert("action_dim".into(), m.action_dim.to_string());
+        out
+    }
+
+    /// The command increment for one observation (`obs_dim` values), as the tick computes it.
+    fn act(&self, obs: Vec<f64>) -> PyResult<Vec<f64>> {
+        let mut scratch = self.policy.scratch();
+        let mut action = vec![0.0; self.policy.action_dim()];
+        self.policy
+            .act(&obs, &mut scratch, &mut action)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(action)
+    }
 }
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Env>()?;
+    m.add_class::<OnboardPolicy>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

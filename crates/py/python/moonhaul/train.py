@@ -6,7 +6,9 @@
 Every rank steps its own ``--num-envs`` worlds (the config's ``env.num_envs`` unless given),
 seeded ``seed + rank`` (``--same-seed``: ``seed`` on every rank, which reproduces a
 single-process run). Rank 0 writes the rsl_rl log and checkpoints (``model_<it>.pt``) under
-``--out``; ``--resume CHECKPOINT`` continues one. ``--save-params FILE`` writes every rank's
+``--out`` and, at the end, the final actor as moonhaul's policy file ``policy.safetensors``
+(``moonhaul.export``), which ``moonhaul eval`` and ``moonhaul-unit`` fly; ``--resume
+CHECKPOINT`` continues one. ``--save-params FILE`` writes every rank's
 final actor and critic state (``FILE.rank<r>``), what the tests compare.
 """
 
@@ -14,10 +16,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import time
 
 import torch
 
-from .rsl import OnPolicyRunner, train_cfg
+from .export import export_actor
+from .rsl import RSL_RL_VERSION, OnPolicyRunner, train_cfg
 from .vec_env import PhaseVecEnv
 
 
@@ -37,6 +41,8 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
 
     rank = int(os.getenv("RANK", "0"))
+    world_size = int(os.getenv("WORLD_SIZE", "1"))
+    started = time.monotonic()
     torch.set_num_threads(args.torch_threads)
     env = PhaseVecEnv(args.config, num_envs=args.num_envs, seed=0, threads=args.threads)
     seed = env.cfg["run"]["seed"] if args.seed is None else args.seed
@@ -52,6 +58,23 @@ def main(argv: list[str] | None = None) -> None:
         runner.load(args.resume)
     iterations = env.cfg["run"]["iterations"] if args.iterations is None else args.iterations
     runner.learn(iterations - runner.current_learning_iteration if args.resume else iterations)
+    if rank == 0 and args.out:
+        it = runner.current_learning_iteration
+        export_actor(
+            runner.alg.actor,
+            env,
+            os.path.join(args.out, "policy.safetensors"),
+            {
+                "created_by": f"rsl_rl {RSL_RL_VERSION} (python -m moonhaul.train)",
+                "train_run": env.cfg["run"]["name"],
+                "seed": seed,
+                "world_size": world_size,
+                "iteration": it,
+                # Every rank stepped its own rows for steps_per_env steps per iteration.
+                "env_steps": (it + 1) * env.cfg["env"]["steps_per_env"] * env.num_envs * world_size,
+                "wall_s": f"{time.monotonic() - started:.0f}",
+            },
+        )
     if args.save_params:
         state = {
             "actor": runner.alg.actor.state_dict(),

@@ -94,6 +94,12 @@ class PhaseVecEnv:
         self.episode_length_buf.zero_()
         return b.td
 
+    @property
+    def native(self) -> Env:
+        """The native environment (``moonhaul._native.Env``): its action map, policy metadata
+        and ``export_policy``."""
+        return self._native
+
     def get_observations(self) -> TensorDict:
         return self._sets[self._current].td
 

@@ -4,7 +4,7 @@
 use sha2::{Digest, Sha256};
 
 use crate::config::TrainConfig;
-use crate::LearnError;
+use crate::EnvError;
 
 /// The git commit of the working tree the trainer runs in (`<hash>-dirty` with uncommitted
 /// changes), or `unknown` outside a git checkout.
@@ -34,7 +34,7 @@ pub fn commit() -> String {
 /// SHA-256 of the resolved training config and the bytes of every file it names (the sim and
 /// task settings of a phase task), so two policies with the same digest were trained on the
 /// same settings.
-pub fn config_digest(config: &TrainConfig) -> Result<String, LearnError> {
+pub fn config_digest(config: &TrainConfig) -> Result<String, EnvError> {
     let mut hash = Sha256::new();
     let mut toml = config.clone();
     if let Some(world) = &mut toml.world {
