@@ -29,6 +29,44 @@ pub struct TrainConfig {
     /// from scratch. Not in the paper.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub warm_start: Option<WarmStartConfig>,
+    /// A behaviour-cloning term in PPO's loss toward the scripted expert, annealed away
+    /// (`moonhaul_learn::kickstart`); needs `[warm_start]` (its expert). Absent: plain PPO. Not
+    /// in the paper.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kickstart: Option<KickstartConfig>,
+}
+
+/// Kickstarting (Schmitt et al., 2018) with a deterministic teacher: during PPO, every visited
+/// state is labelled with the scripted expert's action, and `coef(k) · mean‖μ(s) − a*(s)‖²` is
+/// added to PPO's loss at iteration k, `coef` falling linearly from `bc_coef` at PPO's first
+/// iteration to 0 at `anneal_iterations`, after which PPO runs alone (and the expert is no
+/// longer asked). Not in the paper; every value is a training choice.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KickstartConfig {
+    /// The term's weight at PPO's first iteration, against PPO's surrogate (order 0.01–0.1)
+    /// and the action's squared error in units of the increment step (order 0.01–1).
+    pub bc_coef: f64,
+    /// PPO iterations over which the weight falls to 0 (counted from PPO's first iteration).
+    pub anneal_iterations: usize,
+}
+
+impl KickstartConfig {
+    fn validate(&self) -> Result<(), FieldError> {
+        in_range("bc_coef", self.bc_coef, 0.0, 1e3)?;
+        count(
+            "anneal_iterations",
+            self.anneal_iterations as u64,
+            1,
+            1_000_000,
+        )
+    }
+
+    /// The term's weight at PPO iteration `iteration` (0-based, counted from PPO's first).
+    pub fn coef(&self, iteration: usize) -> f64 {
+        let left = 1.0 - iteration as f64 / self.anneal_iterations as f64;
+        self.bc_coef * left.max(0.0)
+    }
 }
 
 /// The warm start of `moonhaul_learn::distill`: DAgger from the scripted expert, then the critic
@@ -421,6 +459,14 @@ impl Validate for TrainConfig {
                 "the pendulum task has no scripted expert to warm-start from; remove [warm_start]",
             )),
             (Some(warm), _) => section("warm_start", || warm.validate(self.env.num_envs)),
+        }?;
+        match (&self.kickstart, &self.warm_start) {
+            (None, _) => Ok(()),
+            (Some(_), None) => Err(FieldError::new(
+                "kickstart",
+                "kickstarting labels states with [warm_start]'s scripted expert; add [warm_start]",
+            )),
+            (Some(k), Some(_)) => section("kickstart", || k.validate()),
         }
     }
 }
@@ -535,6 +581,51 @@ mod tests {
                 "{phase}_warm drifted from configs/train/{phase}.toml"
             );
         }
+    }
+
+    #[test]
+    fn the_kickstart_variant_is_the_warm_config_with_a_kickstart() {
+        let (warm, mut kicked) = (repo_config("lift_warm"), repo_config("lift_kickstart"));
+        let kickstart = kicked.kickstart.take().expect("[kickstart]");
+        assert!(kickstart.coef(0) > 0.0);
+        assert_eq!(kickstart.coef(kickstart.anneal_iterations), 0.0);
+        assert!(kickstart.anneal_iterations <= kicked.run.iterations);
+        kicked.run.name = warm.run.name.clone();
+        assert_eq!(
+            kicked, warm,
+            "lift_kickstart drifted from configs/train/lift_warm.toml"
+        );
+    }
+
+    #[test]
+    fn kickstart_needs_the_warm_start_s_expert_and_bounded_values() {
+        let text = repo_config("lift_kickstart").to_toml();
+        let refused = |text: &str, field: &str| {
+            let err = TrainConfig::parse(text, Path::new("train.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(field), "{field}: {err}");
+        };
+        let warm = text.find("[warm_start]").unwrap();
+        let kick = text.find("[kickstart]").unwrap();
+        let without_warm = if warm < kick {
+            format!("{}{}", &text[..warm], &text[kick..])
+        } else {
+            text[..warm].to_owned()
+        };
+        refused(&without_warm, "kickstart");
+        refused(
+            &text.replace("bc_coef = 1.0", "bc_coef = -1.0"),
+            "kickstart.bc_coef",
+        );
+        refused(
+            &text.replace("bc_coef = 1.0", "bc_coef = nan"),
+            "kickstart.bc_coef",
+        );
+        refused(
+            &text.replace("anneal_iterations = 150", "anneal_iterations = 0"),
+            "kickstart.anneal_iterations",
+        );
     }
 
     #[test]

@@ -25,6 +25,7 @@ pub mod distill;
 pub mod error;
 pub mod export;
 pub mod gaussian;
+pub mod kickstart;
 pub mod metrics;
 pub mod mlp;
 pub mod normalizer;

@@ -20,13 +20,13 @@ use crate::LearnError;
 
 pub const HEADER: &str = "iteration,env_steps,mean_return,mean_episode_length,eval_return,\
 value_loss,surrogate_loss,entropy,mean_std,kl,lr,steps_per_s,mean_t_max,hold_fraction,\
-mean_grasp_force_n,peak_grasp_force_n,bc_loss,dagger_beta,expert_agreement,explained_variance";
+mean_grasp_force_n,peak_grasp_force_n,bc_loss,dagger_beta,expert_agreement,explained_variance,\
+bc_coef";
 
-/// The columns before the warm start's were added: such a file still resumes, its rows
-/// without them.
-const HEADER_BEFORE_WARM_START: &str = "iteration,env_steps,mean_return,mean_episode_length,\
-eval_return,value_loss,surrogate_loss,entropy,mean_std,kl,lr,steps_per_s,mean_t_max,\
-hold_fraction,mean_grasp_force_n,peak_grasp_force_n";
+/// Columns every file has had since the action pipeline's were added. A file written before
+/// later columns were (the warm start's, kickstarting's) has a prefix of [`HEADER`] with at
+/// least these: it still resumes, its rows without the later columns.
+const MIN_COLUMNS: usize = 16;
 
 /// One iteration's figures; `None` is an empty CSV cell.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -64,6 +64,9 @@ pub struct MetricsRow {
     pub expert_agreement: Option<f64>,
     /// `1 − Var[returns − values] / Var[returns]` over the rollout, before its update.
     pub explained_variance: Option<f64>,
+    /// A kickstarted PPO iteration's behaviour-cloning weight ([`crate::kickstart`]); its
+    /// `bc_loss` and `expert_agreement` are then the update's and the rollout's.
+    pub bc_coef: Option<f64>,
 }
 
 impl MetricsRow {
@@ -85,10 +88,11 @@ impl MetricsRow {
             hold_fraction: stats.pipeline.and_then(|p| p.clamp.hold_fraction()),
             mean_grasp_force_n: stats.pipeline.and_then(|p| p.mean_grasp_force_n()),
             peak_grasp_force_n: stats.pipeline.and_then(|p| p.peak_grasp_force_n()),
-            bc_loss: None,
+            bc_loss: stats.kickstart.map(|k| k.bc_loss),
             dagger_beta: None,
-            expert_agreement: None,
+            expert_agreement: stats.kickstart.map(|k| k.expert_agreement),
             explained_variance: stats.update.explained_variance,
+            bc_coef: stats.kickstart.map(|k| k.coef),
         }
     }
 
@@ -128,6 +132,7 @@ impl MetricsRow {
             dagger_beta: dagger.map(|d| d.1),
             expert_agreement: dagger.map(|d| d.2),
             explained_variance,
+            bc_coef: None,
         }
     }
 
@@ -154,6 +159,7 @@ impl MetricsRow {
             opt(self.dagger_beta),
             opt(self.expert_agreement),
             opt(self.explained_variance),
+            opt(self.bc_coef),
         ]
         .join(",")
     }
@@ -209,6 +215,7 @@ impl MetricsRow {
             dagger_beta: opt(17)?,
             expert_agreement: opt(18)?,
             explained_variance: opt(19)?,
+            bc_coef: opt(20)?,
         })
     }
 }
@@ -268,11 +275,11 @@ pub fn read_rows(path: &Path) -> Result<Vec<MetricsRow>, LearnError> {
     let text =
         moonhaul_core::input::read_capped_text(path, moonhaul_core::input::MAX_RUN_LOG_BYTES)?;
     let mut lines = text.lines();
-    let columns = match lines.next() {
-        Some(HEADER) => HEADER.split(',').count(),
-        Some(HEADER_BEFORE_WARM_START) => HEADER_BEFORE_WARM_START.split(',').count(),
-        _ => return Err(bad(1, "header differs from this build's columns".into())),
-    };
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let columns = header.len();
+    if columns < MIN_COLUMNS || !HEADER.split(',').take(columns).eq(header) {
+        return Err(bad(1, "header differs from this build's columns".into()));
+    }
     lines
         .enumerate()
         .filter(|(_, l)| !l.is_empty())
@@ -306,6 +313,7 @@ mod tests {
             dagger_beta: None,
             expert_agreement: None,
             explained_variance: (i > 2).then_some(0.625),
+            bc_coef: None,
         }
     }
 
@@ -362,14 +370,29 @@ mod tests {
     }
 
     #[test]
+    fn kickstart_rows_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.csv");
+        let kick = MetricsRow {
+            bc_loss: Some(0.125),
+            expert_agreement: Some(0.75),
+            bc_coef: Some(0.5),
+            ..row(3, None)
+        };
+        MetricsLog::open(&path, None).unwrap().append(kick).unwrap();
+        assert_eq!(read_rows(&path).unwrap(), [kick]);
+    }
+
+    #[test]
     fn a_file_from_before_the_warm_start_columns_still_resumes() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("metrics.csv");
         let old = row(1, Some(-3.5));
         let cells: Vec<String> = old.to_csv().split(',').take(16).map(String::from).collect();
+        let header: Vec<&str> = HEADER.split(',').take(16).collect();
         std::fs::write(
             &path,
-            format!("{HEADER_BEFORE_WARM_START}\n{}\n", cells.join(",")),
+            format!("{}\n{}\n", header.join(","), cells.join(",")),
         )
         .unwrap();
         let read = read_rows(&path).unwrap();
@@ -385,6 +408,6 @@ mod tests {
         text.push_str(&format!("{}\n", row(2, None).to_csv()));
         std::fs::write(&path, text).unwrap();
         let err = read_rows(&path).unwrap_err().to_string();
-        assert!(err.contains(":3:") && err.contains("20 columns"), "{err}");
+        assert!(err.contains(":3:") && err.contains("21 columns"), "{err}");
     }
 }

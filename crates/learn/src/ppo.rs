@@ -11,8 +11,12 @@ use crate::actor_critic::ActorCritic;
 use crate::adam::Adam;
 use crate::config::{PpoConfig, Schedule};
 use crate::gaussian;
-use crate::storage::{bootstrap_time_outs, RolloutStorage, Transition};
+use crate::storage::{bootstrap_time_outs, Batch, RolloutStorage, Transition};
 use crate::LearnError;
+
+/// An extra loss term of an algorithm built on PPO's update ([`Ppo::update_with`]): given a
+/// minibatch and the actor's mean on it (with its gradient), the scalar to add to the loss.
+pub type AuxLoss<'a> = &'a mut dyn FnMut(&Batch, &Tensor) -> Tensor;
 
 /// Means over the minibatches of one update.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -197,6 +201,18 @@ impl Ppo {
     /// GAE on the stored rollout, bootstrapped from the critic observations `[N, C]` after
     /// its last step, then `epochs × minibatches` gradient steps.
     pub fn update(&mut self, last_critic_obs: &Tensor) -> Result<UpdateStats, LearnError> {
+        self.update_with(last_critic_obs, None)
+    }
+
+    /// [`Ppo::update`] with an extra term in every minibatch's loss: `aux(batch, mean)` gets
+    /// the minibatch and the actor's mean on it (with its gradient) and returns a scalar to
+    /// add. How an algorithm built on PPO's update adds its own objective
+    /// ([`crate::kickstart`]) without a flag in PPO.
+    pub fn update_with(
+        &mut self,
+        last_critic_obs: &Tensor,
+        mut aux: Option<AuxLoss<'_>>,
+    ) -> Result<UpdateStats, LearnError> {
         let last_values = self.policy.value(last_critic_obs);
         let c = &self.config;
         self.storage
@@ -241,7 +257,10 @@ impl Ppo {
                 c.clip,
                 c.clipped_value_loss,
             );
-            let loss = &surrogate + &value * c.value_loss_coef - &e.entropy * c.entropy_coef;
+            let mut loss = &surrogate + &value * c.value_loss_coef - &e.entropy * c.entropy_coef;
+            if let Some(aux) = aux.as_mut() {
+                loss += aux(&batch, &e.mean);
+            }
             self.optimizer.zero_grad();
             loss.backward();
             self.optimizer.clip_grad_norm(c.max_grad_norm);

@@ -10,6 +10,7 @@ use tch::{Kind, Tensor};
 use crate::actor_critic::ActorCritic;
 use crate::config::TrainConfig;
 use crate::env::{PipelineStats, VecEnv, VecStep};
+use crate::kickstart::{Kickstart, KickstartStats};
 use crate::ppo::{EnvAnswer, Ppo, TimeOuts, UpdateStats};
 use crate::LearnError;
 
@@ -41,6 +42,8 @@ pub struct IterationStats {
     pub timing: IterationTiming,
     /// What the action pipeline did in this iteration's rollout (phase tasks).
     pub pipeline: Option<PipelineStats>,
+    /// The behaviour-cloning term of a kickstarted iteration (weight above 0).
+    pub kickstart: Option<KickstartStats>,
 }
 
 /// Where one iteration's wall time went, s.
@@ -244,6 +247,7 @@ pub struct Runner {
     episodes: EpisodeStats,
     progress: Progress,
     eval_seed: u64,
+    kickstart: Option<Kickstart>,
 }
 
 impl Runner {
@@ -282,7 +286,20 @@ impl Runner {
             ppo,
             progress,
             eval_seed: eval_seed(config.run.seed),
+            kickstart: None,
         })
+    }
+
+    /// Kickstarts the PPO iterations ([`crate::kickstart`]): the expert labels every rollout
+    /// state, and the update adds the behaviour-cloning term while its weight is above 0.
+    pub fn with_kickstart(mut self, config: crate::config::KickstartConfig) -> Self {
+        let (steps, envs, actions) = (
+            self.steps_per_env,
+            self.env.num_envs(),
+            self.env.action_dim(),
+        );
+        self.kickstart = Some(Kickstart::new(config, steps, envs, actions));
+        self
     }
 
     pub fn ppo(&self) -> &Ppo {
@@ -304,13 +321,20 @@ impl Runner {
         let mut env_s = 0.0;
         self.env.take_physics_s();
         self.env.take_pipeline_stats();
-        for _ in 0..self.steps_per_env {
+        let iteration = self.progress.iteration;
+        let mut kickstart = self.kickstart.as_mut().filter(|k| k.coef(iteration) > 0.0);
+        for step in 0..self.steps_per_env {
             let (env, buf, episodes) = (&mut self.env, &mut self.buf, &mut self.episodes);
             let reward_scale = self.reward_scale;
+            let kickstart = kickstart.as_deref_mut();
             let answer = self
                 .ppo
                 .act_and_store(&self.obs, &self.critic_obs, |actions| {
                     let env_start = Instant::now();
+                    if let Some(k) = kickstart {
+                        // The state the action was sampled in, before the step changes it.
+                        k.label(env.as_mut(), step)?;
+                    }
                     let answer = step_env(env.as_mut(), buf, actions, reward_scale)?;
                     episodes.record(buf);
                     env_s += env_start.elapsed().as_secs_f64();
@@ -323,7 +347,16 @@ impl Runner {
         let physics_s = self.env.take_physics_s();
         let pipeline = self.env.take_pipeline_stats();
         let update_start = Instant::now();
-        let update = self.ppo.update(&self.critic_obs)?;
+        let (update, kickstart) = match kickstart {
+            Some(k) => {
+                let mut term = k.term(k.coef(iteration));
+                let update = self
+                    .ppo
+                    .update_with(&self.critic_obs, Some(&mut |b, m| term.loss(b, m)))?;
+                (update, Some(term.stats()))
+            }
+            None => (self.ppo.update(&self.critic_obs)?, None),
+        };
         let timing = IterationTiming {
             rollout_s,
             env_s,
@@ -344,6 +377,7 @@ impl Runner {
             steps_per_s: samples as f64 / start.elapsed().as_secs_f64(),
             timing,
             pipeline,
+            kickstart,
         })
     }
 
@@ -484,6 +518,16 @@ mod tests {
             }
             Ok(())
         }
+
+        /// An expert that drives every row's x to 0.5: its raw action depends on the state,
+        /// so labels taken from another state than the action's would not fit.
+        fn expert_actions(&mut self, actions: &mut [f64]) -> Result<(), EnvError> {
+            check_len("expert actions", actions, self.num_envs())?;
+            for (a, x) in actions.iter_mut().zip(&self.x) {
+                *a = 5.0 * (0.5 - x);
+            }
+            Ok(())
+        }
     }
 
     /// Three worlds of two agent rows each, four steps per rollout.
@@ -555,6 +599,75 @@ mod tests {
         );
         assert_eq!(policy.obs_normalizer().unwrap().mean().size(), [2]);
         assert!(runner.evaluate().unwrap().is_finite());
+    }
+
+    /// Mean squared error of the actor's mean to the expert's action over the states `[x, row]`
+    /// for x in [0, 0.6] and every row.
+    fn expert_error(runner: &Runner) -> f64 {
+        let (mut obs, mut labels) = (Vec::new(), Vec::new());
+        for row in 0..6 {
+            for k in 0..=6 {
+                let x = 0.1 * k as f64;
+                obs.extend([x, row as f64]);
+                labels.push(5.0 * (0.5 - x));
+            }
+        }
+        let mean = values(
+            &runner
+                .ppo
+                .policy()
+                .act_deterministic(&to_tensor(&obs, 42, 2)),
+        );
+        mean.iter()
+            .zip(&labels)
+            .map(|(m, l)| (m - l).powi(2))
+            .sum::<f64>()
+            / 42.0
+    }
+
+    #[test]
+    fn kickstarting_pulls_the_actor_to_the_expert_until_its_weight_is_zero() {
+        let run = |kickstart: Option<f64>| {
+            tch::manual_seed(0);
+            let config = config();
+            let (env, eval_env) = (Privileged::boxed(6, 1), Privileged::boxed(2, 1));
+            let mut runner = Runner::new(
+                &config,
+                env,
+                eval_env,
+                ppo(&config, 6, 3),
+                Progress::default(),
+            )
+            .unwrap();
+            if let Some(bc_coef) = kickstart {
+                runner = runner.with_kickstart(crate::config::KickstartConfig {
+                    bc_coef,
+                    anneal_iterations: 40,
+                });
+            }
+            let before = expert_error(&runner);
+            let stats: Vec<IterationStats> = (0..42).map(|_| runner.iterate().unwrap()).collect();
+            (before, expert_error(&runner), stats)
+        };
+        let (before, plain, stats) = run(None);
+        assert!(stats.iter().all(|s| s.kickstart.is_none()));
+        let (same_start, kicked, stats) = run(Some(50.0));
+        assert_eq!(before, same_start);
+        // PPO alone does not learn the expert's state-dependent action; the term does.
+        assert!(
+            kicked < 0.25 * plain && kicked < 0.25 * before,
+            "{before} {plain} {kicked}"
+        );
+        let k: Vec<_> = stats.iter().map(|s| s.kickstart).collect();
+        let first = k[0].unwrap();
+        assert_eq!(first.coef, 50.0);
+        assert!(first.bc_loss > 0.0 && (0.0..=1.0).contains(&first.expert_agreement));
+        assert!((k[39].unwrap().coef - 50.0 / 40.0).abs() < 1e-9);
+        assert!(
+            k[40].is_none() && k[41].is_none(),
+            "weight 0: no term, no labels"
+        );
+        assert!(k[39].unwrap().bc_loss < first.bc_loss);
     }
 
     #[test]

@@ -36,6 +36,10 @@ pub struct Batch {
     pub old_log_probs: Tensor,
     pub old_means: Tensor,
     pub old_stds: Tensor,
+    /// `[B]` Int64: each sample's row in the rollout flattened over time and envs (step t of
+    /// env n is `t·N + n`), so an algorithm built on PPO's update can gather its own per-sample
+    /// data (kickstarting's expert labels) for the minibatch.
+    pub rows: Tensor,
 }
 
 #[derive(Debug)]
@@ -202,6 +206,7 @@ impl RolloutStorage {
                 let (old_log_probs, old_means, old_stds) = (next(6), next(7), next(8));
                 let sq = |t: Tensor| t.squeeze_dim(1);
                 Batch {
+                    rows: perm.narrow(0, i * size, size),
                     obs,
                     critic_obs,
                     actions,

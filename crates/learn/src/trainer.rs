@@ -352,6 +352,9 @@ pub fn train(
         }
     }
     let mut runner = Runner::new(config, env, eval_env, ppo, progress)?;
+    if let Some(kickstart) = &config.kickstart {
+        runner = runner.with_kickstart(kickstart.clone());
+    }
     while !stopped && runner.progress().iteration < config.run.iterations {
         if options.stop.load(Ordering::SeqCst) {
             stopped = true;
