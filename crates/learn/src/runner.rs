@@ -553,19 +553,18 @@ mod tests {
         to_f64(t).unwrap()
     }
 
-    #[test]
-    fn the_critic_learns_from_the_privileged_observations() {
+    /// A runner on six rows of [`Privileged`] with one privileged column, seeded 0.
+    fn privileged_runner() -> Runner {
         tch::manual_seed(0);
         let config = config();
         let (env, eval_env) = (Privileged::boxed(6, 1), Privileged::boxed(2, 1));
-        let mut runner = Runner::new(
-            &config,
-            env,
-            eval_env,
-            ppo(&config, 6, 3),
-            Progress::default(),
-        )
-        .unwrap();
+        let ppo = ppo(&config, 6, 3);
+        Runner::new(&config, env, eval_env, ppo, Progress::default()).unwrap()
+    }
+
+    #[test]
+    fn the_critic_learns_from_the_privileged_observations() {
+        let mut runner = privileged_runner();
         assert_eq!(runner.obs.size(), [6, 2]);
         assert_eq!(runner.critic_obs.size(), [6, 3]);
 
@@ -628,17 +627,7 @@ mod tests {
     #[test]
     fn kickstarting_pulls_the_actor_to_the_expert_until_its_weight_is_zero() {
         let run = |kickstart: Option<f64>| {
-            tch::manual_seed(0);
-            let config = config();
-            let (env, eval_env) = (Privileged::boxed(6, 1), Privileged::boxed(2, 1));
-            let mut runner = Runner::new(
-                &config,
-                env,
-                eval_env,
-                ppo(&config, 6, 3),
-                Progress::default(),
-            )
-            .unwrap();
+            let mut runner = privileged_runner();
             if let Some(bc_coef) = kickstart {
                 runner = runner.with_kickstart(crate::config::KickstartConfig {
                     bc_coef,
