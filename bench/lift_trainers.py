@@ -89,10 +89,13 @@ def fmt(v: float, digits: int = 0) -> str:
 def eval_row(path: str) -> list[str]:
     with open(path) as f:
         line = [l for l in f.read().splitlines() if l.strip()][-1]
-    d = json.loads(line)["box"]["learned"]
+    box = json.loads(line)["box"]
+    # With --no-scripted the learned open-loop rows sit beside `learned` (its deployed missions).
+    open_loop = box["learned"] if "lift" in box["learned"] else box
+    d = box["learned"]
     cells = []
     for h in ("0.3", "0.5", "0.75"):
-        lift = d["lift"][h]
+        lift = open_loop["lift"][h]
         cells.append(f"{fmt(lift['final_height_error_mm']['mean'], 1)} / {fmt(100 * lift['success_rate']['mean'])} %")
     dep = d.get("deployed")
     if dep:
@@ -148,7 +151,7 @@ def main() -> None:
         for s in seeds:
             for name, trainer in ((f"mt-s{s}", "moonhaul-train"), (f"rsl-s{s}", "stock rsl_rl 5.5.1")):
                 path = os.path.join(args.eval, f"{name}.json")
-                if os.path.exists(path):
+                if os.path.exists(path) and os.path.getsize(path) > 0:
                     print(f"| {trainer} | {s} | " + " | ".join(eval_row(path)) + " |")
 
     if args.png:
