@@ -32,6 +32,26 @@ def test_the_rsl_rl_interface(config):
     assert r[0] == r[1] and r[2] == r[3]
 
 
+def test_stock_rsl_rl_runner_takes_the_env_unchanged(config):
+    """rsl_rl's own OnPolicyRunner, not moonhaul's subclass, on one process: the env is all it
+    needs (the subclass only adds gloo for torchrun on CPU hosts)."""
+    from rsl_rl.runners import OnPolicyRunner
+
+    from moonhaul.rsl import train_cfg
+
+    torch.manual_seed(0)
+    env = lift(config)
+    cfg = train_cfg(env.cfg)
+    cfg.pop("actor_output_gain")  # moonhaul's subclass applies it; stock rsl_rl has no such key
+    cfg["num_steps_per_env"] = 4
+    runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")
+    runner.learn(1)
+    assert runner.current_learning_iteration == 0
+    with torch.inference_mode():
+        actions = runner.get_inference_policy()(env.get_observations())
+    assert actions.shape == (env.num_envs, env.num_actions) and torch.isfinite(actions).all()
+
+
 def test_an_observation_held_from_step_t_is_unchanged_after_step(config):
     """(c): rsl_rl keeps o(t) while it calls step(t+1); it must still read o(t)."""
     env = lift(config)
