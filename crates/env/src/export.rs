@@ -6,13 +6,16 @@
 //! sees the critic's privileged observations.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use moonhaul_core::policy::{
     ActionAffine, Activation, Linear, ObsNormalizer, Policy, PolicyMetadata, Tensor,
 };
 use moonhaul_core::state::Phase;
 
-use crate::EnvError;
+use crate::config::TrainConfig;
+use crate::task::export_identity;
+use crate::{provenance, EnvError, VecEnv};
 
 /// rsl_rl's `EmpiricalNormalization` divides by `std + eps` with this ε (its default, and
 /// `moonhaul-train`'s normalizer's); the file stores `std + ε`.
@@ -20,6 +23,29 @@ pub const NORMALIZER_EPS: f64 = 1e-2;
 
 fn vector(values: &[f64]) -> Tensor {
     Tensor::vector(values.iter().map(|&v| v as f32).collect())
+}
+
+/// The phase and metadata of a policy trained on `env` from `config`, whichever trainer made
+/// it: `trainer`'s entries (who trained it, seed, iterations, samples) under what the file must
+/// say of itself — the task's identity and observation layout, the environment's action map,
+/// the config's digest, the source `commit` and the payload file — which `trainer` cannot
+/// override.
+pub fn policy_provenance(
+    config: &TrainConfig,
+    env: &dyn VecEnv,
+    commit: String,
+    payload_file: Option<&Path>,
+    mut trainer: BTreeMap<String, String>,
+) -> Result<(Phase, BTreeMap<String, String>), EnvError> {
+    let (phase, identity) = export_identity(config.run.task);
+    trainer.extend(identity);
+    trainer.extend(env.policy_metadata());
+    trainer.insert("config_sha256".into(), provenance::config_digest(config)?);
+    trainer.insert("commit".into(), commit);
+    if let Some(path) = payload_file {
+        trainer.insert("payload_file".into(), path.display().to_string());
+    }
+    Ok((phase, trainer))
 }
 
 /// A validated [`Policy`] of an ELU actor. `obs_norm` is the normalizer as the file stores it

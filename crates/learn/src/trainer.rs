@@ -18,18 +18,21 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use moonhaul_core::policy::Policy;
+use moonhaul_core::state::Phase;
+use moonhaul_env::export::policy_provenance;
 
 use crate::actor_critic::ActorCritic;
 use crate::checkpoint::{self, write_atomic};
 use crate::config::TrainConfig;
 use crate::distill;
+use crate::env::VecEnv;
 use crate::export::export_policy;
 use crate::metrics::{MetricsLog, MetricsRow};
 use crate::plot::plot_curves;
 use crate::ppo::Ppo;
 use crate::provenance;
 use crate::runner::{eval_seed, evaluate, Progress, Runner};
-use crate::task::{export_identity, make_env};
+use crate::task::make_env;
 use crate::LearnError;
 
 #[derive(Debug, Clone)]
@@ -123,29 +126,28 @@ fn rollout_size(config: &TrainConfig, rows: usize, width: usize) -> Result<i64, 
         })
 }
 
-/// What every exported policy records about where it came from.
+/// What every exported policy records about where it came from: `moonhaul-train`'s own
+/// entries under the identity every trainer's file carries
+/// ([`moonhaul_env::export::policy_provenance`]).
 fn provenance_extra(
     config: &TrainConfig,
+    env: &dyn VecEnv,
     commit: String,
     progress: Progress,
     eval_return: Option<f64>,
     payload_file: Option<&Path>,
-) -> Result<BTreeMap<String, String>, LearnError> {
-    let (_, mut extra) = export_identity(config.run.task);
-    extra.insert("created_by".into(), "moonhaul-train".into());
-    extra.insert("train_run".into(), config.run.name.clone());
-    extra.insert("seed".into(), config.run.seed.to_string());
-    extra.insert("iteration".into(), progress.iteration.to_string());
-    extra.insert("env_steps".into(), progress.env_steps.to_string());
+) -> Result<(Phase, BTreeMap<String, String>), LearnError> {
+    let mut extra = BTreeMap::from([
+        ("created_by".to_string(), "moonhaul-train".to_string()),
+        ("train_run".into(), config.run.name.clone()),
+        ("seed".into(), config.run.seed.to_string()),
+        ("iteration".into(), progress.iteration.to_string()),
+        ("env_steps".into(), progress.env_steps.to_string()),
+    ]);
     if let Some(r) = eval_return {
         extra.insert("eval_return".into(), r.to_string());
     }
-    extra.insert("commit".into(), commit);
-    if let Some(path) = payload_file {
-        extra.insert("payload_file".into(), path.display().to_string());
-    }
-    extra.insert("config_sha256".into(), provenance::config_digest(config)?);
-    Ok(extra)
+    Ok(policy_provenance(config, env, commit, payload_file, extra)?)
 }
 
 /// The policy of a finished run's best evaluated checkpoint.
@@ -219,7 +221,14 @@ pub fn export_checkpoint(
     let commit = last
         .and_then(|p| p.metadata().extra.get("commit").cloned())
         .unwrap_or_else(provenance::commit);
-    let mut extra = provenance_extra(config, commit, progress, eval_return, payload_file)?;
+    let (phase, mut extra) = provenance_extra(
+        config,
+        env.as_ref(),
+        commit,
+        progress,
+        eval_return,
+        payload_file,
+    )?;
     let (mut compute_s, mut previous) = (0.0, 0);
     for r in &rows {
         let samples = r.env_steps.saturating_sub(previous);
@@ -240,8 +249,6 @@ pub fn export_checkpoint(
         ),
     };
     extra.insert("selected".into(), selected);
-    let (phase, _) = export_identity(config.run.task);
-    extra.extend(env.policy_metadata());
     let exported = export_policy(
         ppo.policy(),
         phase,
@@ -393,7 +400,9 @@ pub fn train(
     };
     plot_curves(dir, metrics.rows())?;
 
-    let mut extra = provenance_extra(config, commit, progress, eval_return, payload_file)?;
+    let env = runner.env();
+    let (phase, mut extra) =
+        provenance_extra(config, env, commit, progress, eval_return, payload_file)?;
     if let Some(last) = metrics.rows().last() {
         if let Some(r) = last.mean_return {
             extra.insert("final_mean_return".into(), r.to_string());
@@ -407,9 +416,6 @@ pub fn train(
         "wall_s".into(),
         format!("{:.0}", start.elapsed().as_secs_f64()),
     );
-    let (phase, _) = export_identity(task);
-    let env = runner.env();
-    extra.extend(env.policy_metadata());
     let exported = export_policy(
         runner.ppo().policy(),
         phase,

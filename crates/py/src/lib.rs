@@ -23,8 +23,7 @@ use std::sync::Mutex;
 
 use moonhaul_core::policy::{Linear, ObsNormalizer, Policy, Tensor as PolicyTensor};
 use moonhaul_env::config::TrainConfig;
-use moonhaul_env::export::assemble_policy;
-use moonhaul_env::task::export_identity;
+use moonhaul_env::export::{assemble_policy, policy_provenance};
 use moonhaul_env::{EnvError, VecEnv, VecStep};
 use pyo3::buffer::{Element, PyBuffer};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -392,26 +391,19 @@ impl Env {
                 ))
             }
         };
-        let mut metadata = extra.unwrap_or_default();
-        let (phase, identity) = export_identity(self.train.run.task);
-        metadata.extend(identity);
-        let (scale, offset, env_metadata) = {
-            let inner = self.lock()?;
-            (
-                inner.env.action_scale(),
-                inner.env.action_offset(),
-                inner.env.policy_metadata(),
-            )
-        };
-        metadata.extend(env_metadata);
-        metadata.insert(
-            "config_sha256".into(),
-            moonhaul_env::provenance::config_digest(&self.train).map_err(py_err)?,
-        );
-        metadata.insert("commit".into(), moonhaul_env::provenance::commit());
-        if let Some(payload) = &self.payload {
-            metadata.insert("payload_file".into(), payload.display().to_string());
-        }
+        let commit = moonhaul_env::provenance::commit();
+        let inner = self.lock()?;
+        let env: &dyn moonhaul_env::VecEnv = inner.env.as_ref();
+        let (phase, metadata) = policy_provenance(
+            &self.train,
+            env,
+            commit,
+            self.payload.as_deref(),
+            extra.unwrap_or_default(),
+        )
+        .map_err(py_err)?;
+        let (scale, offset) = (env.action_scale(), env.action_offset());
+        drop(inner);
         let policy =
             assemble_policy(phase, layers, obs_norm, &scale, &offset, metadata).map_err(py_err)?;
         policy
