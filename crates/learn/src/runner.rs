@@ -638,10 +638,11 @@ mod tests {
             let stats: Vec<IterationStats> = (0..42).map(|_| runner.iterate().unwrap()).collect();
             (before, expert_error(&runner), stats)
         };
-        let (before, plain, stats) = run(None);
+        // The two starts are not bit-equal: libtorch's generator is global, and tests running
+        // beside this one draw from it too.
+        let (_, plain, stats) = run(None);
         assert!(stats.iter().all(|s| s.kickstart.is_none()));
-        let (same_start, kicked, stats) = run(Some(50.0));
-        assert_eq!(before, same_start);
+        let (before, kicked, stats) = run(Some(50.0));
         // PPO alone does not learn the expert's state-dependent action; the term does.
         assert!(
             kicked < 0.25 * plain && kicked < 0.25 * before,
