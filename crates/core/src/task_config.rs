@@ -83,11 +83,6 @@ pub struct PlaceTask {
     pub contact_max_descent_mps: f64,
     /// ... and the lift estimate is at most this high above the start's ground, m.
     pub contact_search_height_m: f64,
-    /// ... and the pressing unit's end effector has stopped sinking: its sensed height
-    /// low-passed over this long, s, at most `contact_max_sink_m` above it low-passed over
-    /// `contact_filter_s`.
-    pub contact_settle_s: f64,
-    pub contact_max_sink_m: f64,
 }
 
 /// The monolithic baseline's mission: lift, transport and place as one episode.
@@ -204,16 +199,7 @@ impl Validate for TaskConfig {
                 "contact_search_height_m",
                 p.contact_search_height_m,
                 p.start_height_m,
-            )?;
-            // Slower than the press's filter (their difference measures the sinking), and
-            // short against the episode.
-            in_range(
-                "contact_settle_s",
-                p.contact_settle_s,
-                p.contact_filter_s,
-                p.duration_s / 2.0,
-            )?;
-            positive("contact_max_sink_m", p.contact_max_sink_m, 0.05)
+            )
         })?;
         // The monolithic mission switches from lift to transport at this height: every lift
         // goal drawn and the transport's carrying height must reach it, or the mission never

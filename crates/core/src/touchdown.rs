@@ -24,20 +24,6 @@
 //! the count again: counted in total, a hanging arm whose press flickers across the threshold
 //! sums its flickers to a release in the air.
 //!
-//! A press is also what a hanging payload's weight does when it shifts between the arms: an
-//! actor that tilts the payload as it lowers it unloads one arm, which rises above its command
-//! (measured: the cloned place policy, tilting the box 3°, stood one arm 5–6 mm above its
-//! baseline for a second at 4–6 cm while lowering at 0.02 m/s, and opened there; 18 of 100
-//! open-loop placements touched down faster than 0.1 m/s). The ground, unlike a shifting
-//! weight, stops the arm it pushes: so the pressing unit's own end effector must have stopped
-//! sinking — its sensed height, low-passed over `place.contact_settle_s`, at most
-//! `place.contact_max_sink_m` above the same height low-passed like the press (a steady descent
-//! at v stands the slow filter v·(settle − filter) above the fast one). Its own arm, not the
-//! team's mean or the lift estimate: over a tilted sledge resting on one end the other arm may
-//! still move, and the lift estimate is each unit's own, where the press is the team's. A
-//! press that rises much faster than its arm sinks still reads as a stop for a moment; the
-//! rule catches a weight that shifts as slowly as the one measured, not a sudden jolt.
-//!
 //! A descending arm lags its command by the same sign: measured 3–8 mm at the 0.09 m/s peak of
 //! the scripted placement's fast descent, which opened the grippers 0.2 m up. So contact
 //! counts only while the team's commands descend no faster than
@@ -69,8 +55,6 @@ pub struct TeamArms {
     pub units: usize,
     /// The mean commanded end-effector height over the units, in their base frames, m.
     pub command_height_m: f64,
-    /// Each unit's sensed end-effector height in its base frame, m.
-    pub sensed_height_m: [f64; MAX_UNITS],
 }
 
 impl TeamArms {
@@ -85,9 +69,6 @@ impl TeamArms {
         self.units > 0
             && self.command_height_m.is_finite()
             && self.press_m[..self.units].iter().all(|p| p.is_finite())
-            && self.sensed_height_m[..self.units]
-                .iter()
-                .all(|h| h.is_finite())
     }
 }
 
@@ -101,7 +82,6 @@ pub fn team_arms<'a>(
         press_m: [f64::NAN; MAX_UNITS],
         units: 0,
         command_height_m: f64::NAN,
-        sensed_height_m: [f64::NAN; MAX_UNITS],
     };
     let mut height_sum = 0.0;
     for (sensed, commanded) in arms.into_iter().take(MAX_UNITS) {
@@ -110,7 +90,6 @@ pub fn team_arms<'a>(
             return team;
         };
         team.press_m[team.units] = s.translation.z - c.translation.z;
-        team.sensed_height_m[team.units] = s.translation.z;
         height_sum += c.translation.z;
         team.units += 1;
     }
@@ -134,10 +113,6 @@ pub struct Touchdown {
     contact_ticks: u32,
     /// The lift estimate at the latest tick in contact, m.
     ground_lift_m: Option<f64>,
-    /// Each unit's sensed end-effector height, low-passed over `contact_filter_s` and over
-    /// `contact_settle_s`, m.
-    sensed_fast_m: [f64; MAX_UNITS],
-    sensed_slow_m: [f64; MAX_UNITS],
     /// Latched once contact has held `release_after_contact_s`: the grippers stay open.
     released: bool,
 }
@@ -152,8 +127,6 @@ impl Default for Touchdown {
             command_height_m: None,
             contact_ticks: 0,
             ground_lift_m: None,
-            sensed_fast_m: [0.0; MAX_UNITS],
-            sensed_slow_m: [0.0; MAX_UNITS],
             released: false,
         }
     }
@@ -174,16 +147,6 @@ impl Touchdown {
         }
         let n = arms.units;
         let baseline_ticks = (place.contact_baseline_s / period_s).round().max(1.0) as u32;
-        let alpha = 1.0 - (-period_s / place.contact_filter_s).exp();
-        let settle_alpha = 1.0 - (-period_s / place.contact_settle_s).exp();
-        for i in 0..n {
-            let height = arms.sensed_height_m[i];
-            if self.ticks == 0 {
-                (self.sensed_fast_m[i], self.sensed_slow_m[i]) = (height, height);
-            }
-            self.sensed_fast_m[i] += alpha * (height - self.sensed_fast_m[i]);
-            self.sensed_slow_m[i] += settle_alpha * (height - self.sensed_slow_m[i]);
-        }
         self.ticks = self.ticks.saturating_add(1);
         if self.ticks <= baseline_ticks {
             for (sum, press) in self.baseline_m.iter_mut().zip(&arms.press_m[..n]) {
@@ -197,15 +160,13 @@ impl Touchdown {
             self.command_height_m = Some(arms.command_height_m);
             return false;
         }
-        let (mut largest, mut presser) = (f64::NEG_INFINITY, 0);
+        let alpha = 1.0 - (-period_s / place.contact_filter_s).exp();
+        let mut largest = f64::NEG_INFINITY;
         for i in 0..n {
             let excess = &mut self.excess_m[i];
             *excess += alpha * (arms.press_m[i] - self.baseline_m[i] - *excess);
-            if *excess > largest {
-                (largest, presser) = (*excess, i);
-            }
+            largest = largest.max(*excess);
         }
-        let presser_sinking_m = self.sensed_slow_m[presser] - self.sensed_fast_m[presser];
         if let Some(last) = self.command_height_m.replace(arms.command_height_m) {
             let descent = (last - arms.command_height_m) / period_s;
             self.descent_mps += alpha * (descent - self.descent_mps);
@@ -213,7 +174,6 @@ impl Touchdown {
         if largest >= place.contact_press_m
             && self.descent_mps <= place.contact_max_descent_mps
             && lift_estimate_m <= place.contact_search_height_m
-            && presser_sinking_m <= place.contact_max_sink_m
         {
             self.contact_ticks = self.contact_ticks.saturating_add(1);
             self.ground_lift_m = Some(lift_estimate_m);
@@ -245,12 +205,8 @@ mod tests {
             press_m: [f64::NAN; MAX_UNITS],
             units: press_m.len(),
             command_height_m,
-            sensed_height_m: [f64::NAN; MAX_UNITS],
         };
         team.press_m[..press_m.len()].copy_from_slice(press_m);
-        for (sensed, press) in team.sensed_height_m.iter_mut().zip(press_m) {
-            *sensed = command_height_m + press;
-        }
         team
     }
 
@@ -355,35 +311,6 @@ mod tests {
         let held = (0..release_ticks).map(|_| t.update(&place, &pressing, 0.05, PERIOD_S));
         assert_eq!(held.filter(|&r| r).count(), 1);
         assert!(t.update(&place, &hanging, 0.05, PERIOD_S));
-    }
-
-    #[test]
-    fn a_weight_shifting_off_a_lowering_arm_is_no_contact_until_the_arm_stops() {
-        let place = TaskConfig::shipped().unwrap().place;
-        let mut t = Touchdown::default();
-        // Lowering at 0.025 m/s all along; after a second the load starts shifting off one
-        // arm, which rises to 6 mm above its command over the next second (so it sinks at
-        // 0.019 m/s meanwhile) and stays there for 2 s more.
-        let mut height_m = 0.2;
-        let mut tilted = [0.0, 0.0];
-        for k in 0..200 {
-            height_m -= 0.025 * PERIOD_S;
-            let shift = (k.clamp(50, 100) - 50) as f64 / 50.0 * 0.006;
-            tilted = [shift, -shift];
-            assert!(
-                !t.update(&place, &arms(&tilted, height_m), 0.05, PERIOD_S),
-                "tick {k}"
-            );
-        }
-        // The ground stops that arm: the release follows once its slow filter has caught up.
-        let settle = (place.contact_settle_s / PERIOD_S).round() as usize;
-        let release = (place.release_after_contact_s / PERIOD_S).round() as usize;
-        let still = arms(&tilted, height_m);
-        let released_at = (0..4 * settle).find(|_| t.update(&place, &still, 0.05, PERIOD_S));
-        assert!(
-            released_at.is_some_and(|k| k >= release && k < 3 * settle + release),
-            "{released_at:?}"
-        );
     }
 
     #[test]
