@@ -24,6 +24,12 @@
 //! the count again: counted in total, a hanging arm whose press flickers across the threshold
 //! sums its flickers to a release in the air.
 //!
+//! Known limit: a weight shifting between the arms reads as a press too. An actor that tilts
+//! the payload as it lowers it unloads one arm, which rises above its command; the cloned place
+//! policy opens the grippers up to 5 cm up this way. Requiring the pressing arm to have stopped
+//! sinking fixed that, but kept the scripted expert from letting go of a sledge pivoting on one
+//! runner end within the place episode (`docs/measurements/2026-12-05.md`), so it is not done.
+//!
 //! A descending arm lags its command by the same sign: measured 3–8 mm at the 0.09 m/s peak of
 //! the scripted placement's fast descent, which opened the grippers 0.2 m up. So contact
 //! counts only while the team's commands descend no faster than
