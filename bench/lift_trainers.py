@@ -90,12 +90,12 @@ def eval_row(path: str) -> list[str]:
     with open(path) as f:
         line = [l for l in f.read().splitlines() if l.strip()][-1]
     box = json.loads(line)["box"]
-    # With --no-scripted the learned open-loop rows sit beside `learned` (its deployed missions).
-    open_loop = box["learned"] if "lift" in box["learned"] else box
+    # `moonhaul eval --json`: the learned policies' open-loop rows sit at the payload's level,
+    # their deployed missions under `learned`.
     d = box["learned"]
     cells = []
     for h in ("0.3", "0.5", "0.75"):
-        lift = open_loop["lift"][h]
+        lift = box["lift"][h]
         cells.append(f"{fmt(lift['final_height_error_mm']['mean'], 1)} / {fmt(100 * lift['success_rate']['mean'])} %")
     dep = d.get("deployed")
     if dep:

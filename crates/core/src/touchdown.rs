@@ -103,6 +103,11 @@ pub fn team_arms<'a>(
     team
 }
 
+/// Control ticks in `duration_s`, at least one (a zero duration still takes a tick).
+fn ticks(duration_s: f64, period_s: f64) -> u32 {
+    (duration_s / period_s).round().max(1.0) as u32
+}
+
 /// One placement's touchdown state; [`Touchdown::default`] at the start of each Place.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Touchdown {
@@ -152,7 +157,7 @@ impl Touchdown {
             return self.released;
         }
         let n = arms.units;
-        let baseline_ticks = (place.contact_baseline_s / period_s).round().max(1.0) as u32;
+        let baseline_ticks = ticks(place.contact_baseline_s, period_s);
         self.ticks = self.ticks.saturating_add(1);
         if self.ticks <= baseline_ticks {
             for (sum, press) in self.baseline_m.iter_mut().zip(&arms.press_m[..n]) {
@@ -183,9 +188,7 @@ impl Touchdown {
         {
             self.contact_ticks = self.contact_ticks.saturating_add(1);
             self.ground_lift_m = Some(lift_estimate_m);
-            // A zero duration still needs one tick in contact.
-            let release_ticks = (place.release_after_contact_s / period_s).round().max(1.0);
-            self.released |= f64::from(self.contact_ticks) >= release_ticks;
+            self.released |= self.contact_ticks >= ticks(place.release_after_contact_s, period_s);
         } else {
             self.contact_ticks = 0;
         }
