@@ -297,7 +297,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
             continue;
         }
         let path = policy_file(&args.policies, phase);
-        let task = PhaseTask::new(phase, tasks, sync, &scene)?;
+        let mut task = PhaseTask::new(phase, tasks, sync, &scene)?;
+        // The place metrics' steady window is an episode's last second. Cut at the training
+        // episode's end, it held the last ticks before a late release (and some placements still
+        // held); the scripted controller's place segment runs `after_release_s` past its
+        // release. So a learned placement runs that much past the training episode's end.
+        if phase == Phase::Place {
+            task = task.with_time_limit_s(tasks.duration_s(phase) + plan.after_release_s);
+        }
         let policy = rollout::load_policy(&path, phase)?;
         // The episodes bound increments by the tasks' map; a policy trained with other steps
         // would be evaluated on a map it was not trained on.

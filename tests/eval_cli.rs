@@ -130,6 +130,21 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
             );
         }
     }
+    // A placement runs the mission's `after_release_s` past the place episode's training
+    // length, so its steady window can follow a release; the holding policy never releases
+    // and runs to that limit.
+    let place_csv = std::fs::read_to_string(out.join("box/place/000.csv")).unwrap();
+    let last_t_s: f64 = place_csv
+        .lines()
+        .last()
+        .and_then(|row| row.split(',').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap();
+    let limit_s = TaskConfig::shipped().unwrap().place.duration_s
+        + moonhaul_core::scripted::MissionPlan::shipped()
+            .unwrap()
+            .after_release_s;
+    assert!((last_t_s - limit_s).abs() < 1e-9, "{last_t_s} s");
     let recomputed: serde_json::Value = serde_json::from_str(&stdout(&moonhaul(&[
         "eval",
         "--recompute",

@@ -164,6 +164,14 @@ impl PhaseTask {
         Ok(task)
     }
 
+    /// The same task with its episodes cut at `time_limit_s` instead of the phase's
+    /// `duration_s`, which the actor's phase progress keeps measuring: evaluation runs a
+    /// placement on past its training horizon to see the released payload settle.
+    pub fn with_time_limit_s(mut self, time_limit_s: f64) -> Self {
+        self.max_steps = (time_limit_s / self.control_period_s).round() as u64;
+        self
+    }
+
     /// A scripted expert for one unit of an episode of this task: it takes the phase over with
     /// the payload where the task starts it (`start_lift_m`: a transport or place start, or a
     /// hand-over, holds the mission's transport height).
