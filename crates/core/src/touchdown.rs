@@ -26,13 +26,17 @@
 //!
 //! Known limit: a weight shifting between the arms reads as a press too. An actor that tilts
 //! the payload as it lowers it unloads one arm, which rises above its command; the cloned place
-//! policy opens the grippers up to 5 cm up this way. Two tests that tell the two apart were
-//! measured and not taken (`docs/measurements/2026-12-05.md`, `2026-12-05-place.md`): that the
-//! pressing arm has stopped sinking (the scripted expert's press follows a yielding contact
-//! down, so it never let go of a sledge pivoting on one end and broke the grasp instead), and
-//! that the team's total press, the sum over the units, reaches the threshold too (a shift
-//! loads one arm as it unloads the other; the ground unloads both: the drops ended, but the
-//! place clone, tilting the sledge, then completed 37 of 100 deployed sledge missions).
+//! policy opens the grippers up to 5 cm up this way. Three tests that tell the two apart were
+//! measured and not taken (`docs/measurements/2026-12-05.md`, `2026-12-05-place.md`,
+//! `2026-12-05-touchdown.md`): that the pressing arm has stopped sinking (the scripted
+//! expert's press follows a yielding contact down, so it never let go of a sledge pivoting on
+//! one end and broke the grasp instead), that the team's total press, the sum over the units,
+//! reaches the threshold too (a shift loads one arm as it unloads the other; the ground unloads
+//! both: the drops ended, but the place clone, tilting the sledge, then completed 37 of 100 deployed sledge missions, its arms
+//! straining until the tracking stop), and that total or one unit's press alone at 15 mm,
+//! above any shift of the payload's weight, below the strain (the clone retrained with it
+//! dropped less, 93 % of its open-loop box placements succeeded against 80 %, but it completed
+//! 94 of 100 deployed sledge missions against 98).
 //!
 //! A descending arm lags its command by the same sign: measured 3–8 mm at the 0.09 m/s peak of
 //! the scripted placement's fast descent, which opened the grippers 0.2 m up. So contact
