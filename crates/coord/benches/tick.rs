@@ -76,6 +76,7 @@ fn main() {
         let measured = Measurements {
             payload_height_m: 0.1,
             goal_distance_m: 2.0,
+            wheel_speed_radps: 0.0,
             grasp_force_n: &forces,
         };
         let input = ClampInput {
@@ -186,6 +187,7 @@ fn running_team() -> Team {
     let measured = Measurements {
         payload_height_m: 0.0,
         goal_distance_m: 2.0,
+        wheel_speed_radps: 0.0,
         grasp_force_n: &forces,
     };
     team.tick(1_000_000, &measured, None);

@@ -71,6 +71,11 @@ pub struct TransportConfig {
     pub goal_distance_max_m: f64,
     /// Once asserted, the event stays asserted up to τ_place + hysteresis.
     pub hysteresis_m: f64,
+    /// ω_stop, rad/s: the team counts as stopped once every unit's last commanded wheel speed
+    /// is at most this.
+    pub wheel_speed_max_radps: f64,
+    pub wheel_speed_hysteresis_radps: f64,
+    /// Ticks both conditions must hold together.
     pub debounce_ticks: u32,
 }
 
@@ -217,6 +222,13 @@ impl Validate for GateConfig {
         section("transport", || {
             positive("goal_distance_max_m", t.goal_distance_max_m, 10.0)?;
             in_range("hysteresis_m", t.hysteresis_m, 0.0, 1.0)?;
+            positive("wheel_speed_max_radps", t.wheel_speed_max_radps, 100.0)?;
+            in_range(
+                "wheel_speed_hysteresis_radps",
+                t.wheel_speed_hysteresis_radps,
+                0.0,
+                100.0,
+            )?;
             count("debounce_ticks", t.debounce_ticks.into(), 1, MAX_TICKS)
         })?;
         section("place", || {

@@ -4,7 +4,7 @@
 //! m_{t+1} = 0  if σ_t = 1                        (safety stop wins over everything)
 //!           1  if m_t = 0 ∧ start
 //!           2  if m_t = 1 ∧ h_payload ≥ h_min
-//!           3  if m_t = 2 ∧ d_goal ≤ τ_place
+//!           3  if m_t = 2 ∧ d_goal ≤ τ_place ∧ |ω_cmd| ≤ ω_stop
 //!           0  if m_t = 3 ∧ released
 //!           m_t otherwise
 //! ```
@@ -15,6 +15,13 @@
 //! consecutive ticks (debounce). Only the event that leaves the current phase is watched, and
 //! its count restarts whenever the phase changes, so a condition met in one phase never carries
 //! over into the next.
+//!
+//! `at_goal` also asks that the team has stopped driving: every unit's last commanded wheel
+//! speed at most `transport.wheel_speed_max_radps` (a stopped-goal check, as Nav2's
+//! `StoppedGoalChecker`; the paper names only τ_place). The transport profile ends at rest on
+//! the goal, but τ_place is met about 2.5 cm before it, at 0.1 m/s, and the agreement hold
+//! stops the wheels in one tick: the closed chain then squeezed the payload (grasp forces
+//! 65 → 350 N) and in some missions the drives never caught up (tracking stop).
 //!
 //! `released` is measured as: payload height above the ground ≤ `place.payload_height_max_m`
 //! (it rests) AND the largest grasp force over all units ≤ `place.grasp_force_max_n` (every arm
@@ -63,6 +70,9 @@ pub struct Measurements<'a> {
     pub payload_height_m: f64,
     /// Horizontal distance from the payload to its goal, m.
     pub goal_distance_m: f64,
+    /// The largest wheel speed the team last commanded (every unit's U_{k−1}), rad/s: whether
+    /// the team is still driving.
+    pub wheel_speed_radps: f64,
     /// Magnitude of each unit's grasp force on the payload, N (one entry per unit).
     pub grasp_force_n: &'a [f64],
 }
@@ -112,6 +122,7 @@ pub struct PhaseGate {
     config: GateConfig,
     lifted: Schmitt,
     at_goal: Schmitt,
+    stopped: Schmitt,
     resting: Schmitt,
     let_go: Schmitt,
     /// The phase whose exit event is being debounced.
@@ -127,6 +138,11 @@ impl PhaseGate {
             config: *config,
             lifted: Schmitt::new(l.payload_height_min_m, l.hysteresis_m, Sense::AtLeast),
             at_goal: Schmitt::new(t.goal_distance_max_m, t.hysteresis_m, Sense::AtMost),
+            stopped: Schmitt::new(
+                t.wheel_speed_max_radps,
+                t.wheel_speed_hysteresis_radps,
+                Sense::AtMost,
+            ),
             resting: Schmitt::new(p.payload_height_max_m, p.height_hysteresis_m, Sense::AtMost),
             let_go: Schmitt::new(p.grasp_force_max_n, p.force_hysteresis_n, Sense::AtMost),
             watching: Phase::Idle,
@@ -154,10 +170,11 @@ impl PhaseGate {
                 self.lifted.update(measured.payload_height_m),
                 self.config.lift.debounce_ticks,
             ),
-            Phase::Transport => (
-                self.at_goal.update(measured.goal_distance_m),
-                self.config.transport.debounce_ticks,
-            ),
+            Phase::Transport => {
+                let at_goal = self.at_goal.update(measured.goal_distance_m);
+                let stopped = self.stopped.update(measured.wheel_speed_radps);
+                (at_goal && stopped, self.config.transport.debounce_ticks)
+            }
             Phase::Place => {
                 let resting = self.resting.update(measured.payload_height_m);
                 let let_go = self.let_go.update(largest_force(measured.grasp_force_n));
@@ -322,6 +339,7 @@ mod tests {
         Measurements {
             payload_height_m: height_m,
             goal_distance_m: goal_m,
+            wheel_speed_radps: 0.0,
             grasp_force_n: forces,
         }
     }
@@ -350,6 +368,31 @@ mod tests {
                 Some(c.transport.debounce_ticks),
             ),
             (Phase::Transport, measured(0.3, 0.051, &loaded), None),
+            // At the goal but still driving: not arrived; stopped at ω_stop: arrived.
+            (
+                Phase::Transport,
+                Measurements {
+                    wheel_speed_radps: c.transport.wheel_speed_max_radps + 1e-6,
+                    ..measured(0.3, 0.0, &loaded)
+                },
+                None,
+            ),
+            (
+                Phase::Transport,
+                Measurements {
+                    wheel_speed_radps: c.transport.wheel_speed_max_radps,
+                    ..measured(0.3, 0.0, &loaded)
+                },
+                Some(c.transport.debounce_ticks),
+            ),
+            (
+                Phase::Transport,
+                Measurements {
+                    wheel_speed_radps: f64::NAN,
+                    ..measured(0.3, 0.0, &loaded)
+                },
+                None,
+            ),
             (
                 Phase::Place,
                 measured(c.place.payload_height_max_m, 0.0, &free),

@@ -419,6 +419,7 @@ mod tests {
         let measured = Measurements {
             payload_height_m: 0.0,
             goal_distance_m: 2.0,
+            wheel_speed_radps: 0.0,
             grasp_force_n: &forces,
         };
         team.receive(&peer(1, Announcements::default()));
@@ -506,6 +507,7 @@ mod tests {
         let measured = Measurements {
             payload_height_m: 0.0,
             goal_distance_m: 2.0,
+            wheel_speed_radps: 0.0,
             grasp_force_n: &forces,
         };
         let ack = |d: &Decision| d.announce.operator.unwrap();
@@ -585,6 +587,7 @@ mod tests {
         let measured = Measurements {
             payload_height_m: 0.0,
             goal_distance_m: 2.0,
+            wheel_speed_radps: 0.0,
             grasp_force_n: &forces,
         };
         team.receive(&peer(1, Announcements::default()));

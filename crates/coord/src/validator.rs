@@ -733,6 +733,7 @@ mod tests {
         let measured = Measurements {
             payload_height_m: 0.0,
             goal_distance_m: 2.0,
+            wheel_speed_radps: 0.0,
             grasp_force_n: &forces,
         };
         let decision = team.tick(NOW, &measured, None);

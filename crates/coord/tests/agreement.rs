@@ -145,6 +145,7 @@ impl Sim {
             let measured = Measurements {
                 payload_height_m: height + unit.bias_m + noise,
                 goal_distance_m: goal + unit.bias_m + noise,
+                wheel_speed_radps: 0.0,
                 grasp_force_n: &forces,
             };
             let decision = unit.team.tick(now_us, &measured, None);

@@ -116,6 +116,7 @@ fn gate_agreement_and_clamp_do_not_allocate_per_tick() {
             let measured = Measurements {
                 payload_height_m: *height,
                 goal_distance_m: 1.0,
+                wheel_speed_radps: 0.0,
                 grasp_force_n: &forces,
             };
             let decision = team.tick(now, &measured, None);

@@ -33,10 +33,11 @@
 //! - *Measurements for the gate.* Payload height: the mean over the units of the FK lift of
 //!   the cargo (own arm, and the peer's arm from its published joints), in Place measured from
 //!   the ground found at touchdown (below). Goal distance: the payload's, as the mean of the
-//!   units' odometric offsets from their phase goals (own and published poses). Release: this unit's own grasp force (a wrist
-//!   force estimate where the hardware has one; otherwise 0 once its gripper is open and
-//!   unbounded before), entered for every unit: the barrier then commits Place → Idle only when
-//!   every unit has seen its own grasp let go.
+//!   units' odometric offsets from their phase goals (own and published poses). Driving: the
+//!   largest wheel speed in the team's last commands (own and published). Release: this
+//!   unit's own grasp force (a wrist force estimate where the hardware has one; otherwise 0
+//!   once its gripper is open and unbounded before), entered for every unit: the barrier then
+//!   commits Place → Idle only when every unit has seen its own grasp let go.
 //! - *Opening the gripper.* The gripper is not part of u⁽ⁱ⁾. In Place, once the team's
 //!   touchdown ([`moonhaul_core::touchdown`]: the largest height of a unit's sensed end
 //!   effector over its command, from every unit's last published state and command) has lasted
@@ -469,6 +470,7 @@ impl Onboard {
             &Measurements {
                 payload_height_m: self.touchdown.height_above_ground_m(lift_estimate_m),
                 goal_distance_m,
+                wheel_speed_radps: self.team_wheel_speed_radps(),
                 grasp_force_n: &self.forces,
             },
             self.fault(),
@@ -767,6 +769,19 @@ impl Onboard {
                 }
             }),
         )
+    }
+
+    /// The largest wheel speed in the team's last commands (own and peers' published U_{k−1}),
+    /// rad/s: whether the team still drives, for the gate's stopped-at-goal check.
+    fn team_wheel_speed_radps(&self) -> f64 {
+        let speeds = self
+            .previous_all
+            .iter()
+            .flat_map(|c| c.wheel_velocity_radps);
+        if speeds.clone().any(|w| !w.is_finite()) {
+            return f64::NAN;
+        }
+        speeds.fold(0.0, |a, w| a.max(w.abs()))
     }
 
     fn fill_message(&mut self, now_us: u64, phase: Phase, own: UnitState, issued: UnitCommand) {
