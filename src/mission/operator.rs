@@ -3,9 +3,9 @@
 //! The console holds the team's key file, so it authenticates what it hears and signs what it
 //! says. It has no clock of its own in the team's time base (a simulated mission runs on the
 //! world's time): it listens to the units first and stamps its commands with the newest unit
-//! stamp it accepted plus the time since it heard it. A start names a mission number that must
-//! exceed every earlier one; the console uses the Unix time in seconds, so starts from any
-//! console increase. A stop names the mission the units report (so a recording of it never
+//! stamp it accepted plus the time since it heard it, at most a control period. A start names
+//! a mission number that must exceed every earlier one; the console uses the Unix time in
+//! seconds, so starts from any console increase. A stop names the mission the units report (so a recording of it never
 //! stops a later mission; with no unit heard it names none and must then arrive fresh).
 //!
 //! **Honest answers.** Every unit reports, in each state message, what it did with the latest
@@ -153,7 +153,7 @@ impl Console {
     fn team_now_us(&self) -> Option<u64> {
         self.units
             .values()
-            .map(|u| u.stamp_us + u.heard.elapsed().as_micros() as u64)
+            .map(|u| extrapolated_stamp_us(u.stamp_us, u.heard.elapsed()))
             .max()
     }
 
@@ -359,6 +359,20 @@ pub async fn start(console: &mut Console, timeout: Duration) -> Result<u32> {
     Ok(mission)
 }
 
+/// The longest the console carries a unit's stamp forward by its own wall clock: about a
+/// control period. Units publish every tick, so a live team's newest stamp is never much older
+/// in real time; a lockstep world's clock runs slower than the wall whenever the machine is
+/// loaded, and carrying the stamp forward by the wall time since it was heard then put a start
+/// more than the staleness bound (3 periods) ahead of a unit's clock: refused as from the
+/// future, the team never started.
+const MAX_EXTRAPOLATION: Duration = Duration::from_millis(20);
+
+/// A unit's stamp `stamp_us`, heard `since` ago, carried forward to now (at most
+/// [`MAX_EXTRAPOLATION`]).
+fn extrapolated_stamp_us(stamp_us: u64, since: Duration) -> u64 {
+    stamp_us.saturating_add(since.min(MAX_EXTRAPOLATION).as_micros() as u64)
+}
+
 /// `moonhaul mission start|stop|status`.
 pub async fn run(command: &str, args: &ConsoleArgs) -> Result<()> {
     if !(args.listen_s.is_finite() && args.listen_s > 0.0 && args.listen_s <= 60.0) {
@@ -427,5 +441,27 @@ fn print_status(console: &Console) {
                 );
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stamp_is_carried_forward_by_at_most_a_control_period() {
+        assert_eq!(
+            extrapolated_stamp_us(1_000, Duration::from_micros(5)),
+            1_005
+        );
+        let cap = MAX_EXTRAPOLATION.as_micros() as u64;
+        assert_eq!(
+            extrapolated_stamp_us(1_000, Duration::from_secs(3)),
+            1_000 + cap
+        );
+        assert_eq!(
+            extrapolated_stamp_us(u64::MAX, Duration::from_secs(1)),
+            u64::MAX
+        );
     }
 }
