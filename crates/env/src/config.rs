@@ -99,6 +99,13 @@ pub struct WarmStartConfig {
     /// state it reaches labelled with the expert's correction (0: the fall reaches 0 in the last
     /// round).
     pub student_rounds: usize,
+    /// Std of the Gaussian noise added to every executed DAgger action, in units of the
+    /// increment step (the action's own scale); the labels stay the expert's clean actions.
+    /// DART's noise injection (Laskey et al. 2017): the rollouts wander off the trajectories of
+    /// the expert and the actor, so the fit also sees the corrections from the states next to
+    /// them, where the deployed clone's own small errors take it. 0 (absent): plain DAgger.
+    #[serde(default)]
+    pub action_noise_std: f64,
     /// Rollouts of the cloned actor that fit only the critic before PPO (0: none).
     pub critic_warmup_iterations: usize,
 }
@@ -493,6 +500,8 @@ impl WarmStartConfig {
         // As `ppo.learning_rate`; β is a probability.
         positive("learning_rate", self.learning_rate, 1.0)?;
         in_range("beta_start", self.beta_start, 0.0, 1.0)?;
+        // Beyond one step's std the executed increments are mostly the clip's, not the labels'.
+        in_range("action_noise_std", self.action_noise_std, 0.0, 1.0)?;
         // At least one round shows the actor the expert's own states at `beta_start`.
         count(
             "student_rounds",
@@ -709,6 +718,18 @@ mod tests {
             (set("buffer_rows", "4194305"), "warm_start.buffer_rows"),
             (set("beta_start", "1.5"), "warm_start.beta_start"),
             (set("beta_start", "-0.1"), "warm_start.beta_start"),
+            (
+                set("action_noise_std", "-0.1"),
+                "warm_start.action_noise_std",
+            ),
+            (
+                set("action_noise_std", "1.5"),
+                "warm_start.action_noise_std",
+            ),
+            (
+                set("action_noise_std", "nan"),
+                "warm_start.action_noise_std",
+            ),
             (set("student_rounds", "8"), "warm_start.student_rounds"),
             (
                 set("critic_warmup_iterations", "10001"),

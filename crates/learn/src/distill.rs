@@ -11,7 +11,10 @@
 //! ([`VecEnv::expert_actions`]). β falls linearly from `beta_start` in the first round to 0,
 //! then stays 0 for the last `student_rounds`: the first rounds show the actor the expert's own
 //! states (behaviour cloning), the later ones the states the actor's own mistakes lead to,
-//! labelled with the expert's correction, which plain cloning never sees. The labelled rows
+//! labelled with the expert's correction, which plain cloning never sees. With
+//! `action_noise_std`, every executed action also carries Gaussian noise and the labels stay
+//! clean (DART, Laskey et al. 2017): the rounds visit the states around both trajectories too,
+//! where a deployed clone's small errors lead, and label the expert's way back. The labelled rows
 //! join a buffer of the most recent `buffer_rows`, and the actor's mean is fitted to them by
 //! squared error, `epochs` × `minibatches` Adam steps per round. As PPO's rollout does, the
 //! actor's observation normalizer learns every visited observation before the fit; the buffer
@@ -164,6 +167,19 @@ impl LabelBuffer {
     }
 }
 
+/// What a DAgger round executes: per row, the expert's `labels` with probability `beta`, else
+/// the actor's `mean`, plus Gaussian noise of std `noise_std` on every component (DART's; the
+/// env clips the sum to its action range). The labels the actor is fitted to stay clean.
+fn executed_actions(labels: &Tensor, mean: &Tensor, beta: f64, noise_std: f64) -> Tensor {
+    let by_expert = Tensor::rand([labels.size()[0], 1], (Kind::Float, Device::Cpu)).lt(beta);
+    let actions = labels.where_self(&by_expert, mean);
+    if noise_std > 0.0 {
+        actions + labels.randn_like() * noise_std
+    } else {
+        actions
+    }
+}
+
 /// DAgger's state between rounds: the envs' episodes run on from one round to the next.
 #[derive(Debug)]
 pub struct Dagger {
@@ -245,8 +261,12 @@ impl Dagger {
                 .le(AGREEMENT_TOLERANCE)
                 .sum(Kind::Int64)
                 .int64_value(&[]);
-            let by_expert = Tensor::rand([n as i64, 1], (Kind::Float, Device::Cpu)).lt(beta);
-            let actions = to_f64(&labels.where_self(&by_expert, &mean))?;
+            let actions = to_f64(&executed_actions(
+                &labels,
+                &mean,
+                beta,
+                self.config.action_noise_std,
+            ))?;
             check_finite("actor action", &actions)?;
             self.buffer.push(&obs, &labels);
             env.step(&actions, &mut self.buf)?;
@@ -499,6 +519,45 @@ mod tests {
 
     fn values(t: &Tensor) -> Vec<f32> {
         Vec::try_from(&t.flatten(0, -1)).unwrap()
+    }
+
+    #[test]
+    fn executed_actions_mix_expert_and_actor_and_add_noise_to_both() {
+        tch::manual_seed(3);
+        let rows = 20_000;
+        let labels = Tensor::ones([rows, 2], (Kind::Float, Device::Cpu));
+        let mean = -Tensor::ones([rows, 2], (Kind::Float, Device::Cpu));
+        // Noise-free: each row is exactly one of the two, the expert's on about β of them.
+        let clean = executed_actions(&labels, &mean, 0.25, 0.0);
+        let by_expert = clean.eq(1.0).all_dim(1, false);
+        assert!(
+            by_expert
+                .logical_or(&clean.eq(-1.0).all_dim(1, false))
+                .all()
+                .int64_value(&[])
+                == 1
+        );
+        let share = by_expert
+            .to_kind(Kind::Float)
+            .mean(Kind::Float)
+            .double_value(&[]);
+        assert!((share - 0.25).abs() < 0.02, "{share}");
+        // With noise: centred on the mix, with the asked-for spread on every component.
+        for beta in [0.0, 1.0] {
+            let noisy = executed_actions(&labels, &mean, beta, 0.3);
+            let centre = if beta == 1.0 { &labels } else { &mean };
+            let noise = noisy - centre;
+            let (m, sd) = (
+                noise.mean(Kind::Float).double_value(&[]),
+                noise.std(true).double_value(&[]),
+            );
+            assert!(
+                m.abs() < 0.01 && (sd - 0.3).abs() < 0.01,
+                "beta {beta}: {m} {sd}"
+            );
+        }
+        // The inputs, the buffer's labels among them, are not touched.
+        assert!(labels.eq(1.0).all().int64_value(&[]) == 1);
     }
 
     #[test]
