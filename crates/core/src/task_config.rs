@@ -108,7 +108,7 @@ pub struct TaskConfig {
 }
 
 /// Longest phase episode, s.
-const MAX_EPISODE_S: f64 = 120.0;
+pub const MAX_EPISODE_S: f64 = 120.0;
 
 impl Validate for TaskConfig {
     fn validate(&self) -> Result<(), FieldError> {

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use moonhaul_core::config::{
     self, count, in_range, positive, section, ConfigError, FieldError, Validate,
 };
+use moonhaul_core::task_config::MAX_EPISODE_S;
 use serde::{Deserialize, Serialize};
 
 use crate::reward::RewardConfig;
@@ -129,6 +130,13 @@ pub struct WorldConfig {
     /// The share of worlds that start from a hand-over (the rest start settled), 0 to 1.
     #[serde(default)]
     pub handover_fraction: f64,
+    /// Episodes run this long, s, instead of the phase's `duration_s` (`tasks.toml`), which the
+    /// actor's phase clock goes on measuring: past it the clock stays at 1. Not in the paper:
+    /// a deployed phase ends when the gate says so, not at its training horizon, and an actor
+    /// never trained past that horizon meets states there it has never seen. At least the
+    /// phase's `duration_s`; absent: the phase's `duration_s`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub episode_s: Option<f64>,
 }
 
 /// What to train and how the run is driven.
@@ -409,6 +417,15 @@ impl Validate for TrainConfig {
                         "handovers",
                         "a hand-over file and a positive handover_fraction go together",
                     ));
+                }
+                if let Some(episode_s) = world.episode_s {
+                    if task == Task::Mission {
+                        return Err(FieldError::new(
+                            "episode_s",
+                            "the mission task has no phase clock to run past; remove episode_s",
+                        ));
+                    }
+                    positive("episode_s", episode_s, MAX_EPISODE_S)?;
                 }
                 Ok(())
             })?,
@@ -806,6 +823,30 @@ mod tests {
             assert_eq!((c.policy.init_std, c.policy.actor_output_gain), (0.5, 0.01));
         }
         assert_eq!(repo_config("pendulum").run.task, Task::Pendulum);
+    }
+
+    #[test]
+    fn episode_s_is_refused_by_name_out_of_range_or_without_a_phase_clock() {
+        let with = |name: &str, value: &str| {
+            let text = repo_config(name).to_toml();
+            let edited = text.replacen("[world]\n", &format!("[world]\nepisode_s = {value}\n"), 1);
+            assert_ne!(edited, text);
+            TrainConfig::parse(&edited, Path::new("train.toml"))
+        };
+        assert_eq!(
+            with("place", "12.0").unwrap().world.unwrap().episode_s,
+            Some(12.0)
+        );
+        for (name, value) in [
+            ("place", "0.0"),
+            ("place", "-1.0"),
+            ("place", "nan"),
+            ("place", "121.0"),
+            ("mission", "12.0"),
+        ] {
+            let err = with(name, value).unwrap_err().to_string();
+            assert!(err.contains("world.episode_s"), "{name} {value}: {err}");
+        }
     }
 
     #[test]

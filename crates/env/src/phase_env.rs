@@ -188,6 +188,13 @@ impl PhaseVecEnv {
         Ok(self)
     }
 
+    /// The same batch with its episodes cut at `episode_s` instead of the phase's `duration_s`,
+    /// which the actor's phase clock goes on measuring ([`PhaseTask::with_time_limit_s`]).
+    pub fn with_episode_s(mut self, episode_s: f64) -> Self {
+        self.task = self.task.with_time_limit_s(episode_s);
+        self
+    }
+
     /// The same batch with a scripted expert flying `plan` in every world, for
     /// [`VecEnv::expert_actions`]. Attach it before the first step: a script that missed the
     /// start of its episode is refused until the world's next episode.

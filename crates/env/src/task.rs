@@ -84,6 +84,20 @@ pub fn make_env(
         }
         _ => HandOverStarts::default(),
     };
+    let episode_s = match (world.episode_s, phase) {
+        (Some(episode_s), Some(phase)) if episode_s < tasks.duration_s(phase) => {
+            return Err(EnvError::InvalidConfig {
+                field: "world.episode_s".into(),
+                reason: format!(
+                    "{episode_s} s is shorter than the {phase} phase's duration_s ({} s in {}): \
+                     the episode would end before its phase clock does",
+                    tasks.duration_s(phase),
+                    world.tasks.display()
+                ),
+            })
+        }
+        (episode_s, _) => episode_s,
+    };
     let mut env = PhaseVecEnv::new(
         phase,
         scene,
@@ -94,6 +108,9 @@ pub fn make_env(
         config.run.threads,
     )?
     .with_handover_starts(starts)?;
+    if let Some(episode_s) = episode_s {
+        env = env.with_episode_s(episode_s);
+    }
     // The scripted expert DAgger clones (moonhaul_learn::distill), only where a warm start asks
     // for it.
     if let Some(warm) = &config.warm_start {
@@ -150,6 +167,25 @@ mod tests {
             assert_eq!(env.num_envs(), rows, "{name}");
             assert!(env.max_episode_steps().is_some_and(|n| n > 0), "{name}");
         }
+    }
+
+    #[test]
+    fn episode_s_runs_episodes_past_the_phase_clock_and_never_short_of_it() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/train/");
+        let mut config = TrainConfig::load(format!("{dir}place.toml")).unwrap();
+        let world = config.world.as_mut().unwrap();
+        (world.handovers, world.handover_fraction) = (None, 0.0);
+        let steps = |config: &TrainConfig| make_env(config, 1, None).map(|e| e.max_episode_steps());
+        // tasks.toml: an 8 s placement at 50 Hz.
+        assert_eq!(steps(&config).unwrap(), Some(400));
+        config.world.as_mut().unwrap().episode_s = Some(12.0);
+        assert_eq!(steps(&config).unwrap(), Some(600));
+        config.world.as_mut().unwrap().episode_s = Some(5.0);
+        let err = steps(&config).err().unwrap().to_string();
+        assert!(
+            err.contains("world.episode_s") && err.contains("tasks.toml"),
+            "{err}"
+        );
     }
 
     #[test]
