@@ -249,6 +249,11 @@ pub fn missions(
                 );
             }
             let phase = units[0].0.phase();
+            // A grasp the sim broke by overload is a failed mission wherever it happened, even
+            // if the gate, reading no load on that wrist, then ends the placement.
+            if state.grasp_broken && mission.first_stop.is_none() {
+                mission.first_stop = Some(format!("a grasp broke in {phase}"));
+            }
             seen_place |= phase == Phase::Place;
             if phase != last_phase {
                 (last_phase, phase_start) = (phase, tick);
@@ -266,7 +271,8 @@ pub fn missions(
         }
         let faulted = units.iter().any(|(o, ..)| o.fault().is_some());
         let released = state.units.iter().all(|u| !u.grasp.attached);
-        mission.completed = seen_place && ended_at.is_some() && released && !faulted;
+        mission.completed =
+            seen_place && ended_at.is_some() && released && !faulted && !state.grasp_broken;
         mission.outcome = if mission.completed {
             "completed".into()
         } else if let Some(stop) = &mission.first_stop {
@@ -335,7 +341,8 @@ struct Tally {
     release_height_m: Option<f64>,
     outcome: String,
     handovers: Vec<HandOver>,
-    /// The first safety stop raised by a unit itself (not one it heard), with its phase.
+    /// The first failure, with its phase: a safety stop raised by a unit itself (not one it
+    /// heard), or a grasp broken by overload.
     first_stop: Option<String>,
     /// The phase of the unit's last tick, for naming where a stop happened.
     last_phase: [Phase; UNITS],
@@ -558,6 +565,36 @@ mod tests {
             "the seeds no longer meet ground 2 mm higher and 5 mm lower than the start's: \
              {offsets:?}"
         );
+    }
+
+    /// A grasp the simulator breaks by overload fails the mission under that name, though the
+    /// broken wrist then reads no load (as an opened one) to the gate.
+    #[test]
+    fn a_broken_grasp_fails_the_mission_by_name() {
+        let (_, stack, plan) = shipped_stack();
+        let mut config = SimConfig::shipped().unwrap();
+        config.grasp.break_force_n = 20.0; // below half the box's weight: breaks before it is up
+        let scene = SceneModel::new(config).unwrap();
+        let run = Episodes {
+            payload: PayloadKind::Box,
+            randomize: false,
+            count: 1,
+            seed: 1000,
+            threads: 0,
+        };
+        let scripted = || Ok(Controller::Scripted(plan));
+        let missions = missions(
+            &scene,
+            &stack,
+            &scripted,
+            run,
+            false,
+            &ProgressBar::hidden(),
+        )
+        .unwrap();
+        assert!(!missions[0].completed);
+        let outcome = &missions[0].outcome;
+        assert!(outcome.starts_with("a grasp broke in "), "{outcome}");
     }
 
     /// A hand-over captured in a deployed scripted mission replays into the deployed world

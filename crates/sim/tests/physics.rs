@@ -180,6 +180,18 @@ fn grasps_release_and_break_above_the_configured_limit() {
     let mut env = Env::new(&scene, 0, options).unwrap();
     let s = run_mission(&scene, &mut env, MissionPlan::shipped().unwrap(), |_, _| {}).unwrap();
     assert!(s.grasp_broken && s.max_height_m < 0.05, "{s:?}");
+    // A broken grasp reads no load, as a released one, not the overload it broke at: the
+    // wrist force a unit senses (the phase gate's released test reads it) is the truth.
+    let broken = env.state(&scene).units;
+    assert!(broken.iter().any(|u| !u.grasp.attached));
+    for u in broken.iter().filter(|u| !u.grasp.attached) {
+        assert_eq!(
+            (u.grasp.force_n, u.grasp.torque_nm),
+            (0.0, 0.0),
+            "{:?}",
+            u.grasp
+        );
+    }
 
     let scene = self::scene();
     let mut env = Env::new(&scene, 0, options).unwrap();

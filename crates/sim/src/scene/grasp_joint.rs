@@ -71,7 +71,9 @@ impl Env {
             if state.force_n > limits.break_force_n || state.torque_nm > limits.break_torque_nm {
                 self.world.remove_impulse_joint(h);
                 *grasp = None;
-                state.attached = false;
+                // A broken grasp holds nothing: the wrist reads no load from now on (as a
+                // released one), not the overload it broke at.
+                *state = GraspState::default();
                 self.grasp_broken = true;
             }
         }
