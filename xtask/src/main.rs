@@ -30,6 +30,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 
+mod train_all;
 mod vendor_check;
 
 /// The PyTorch release `tch` 0.26 is built against.
@@ -63,9 +64,12 @@ const USAGE: &str =
                 project venv, .venv or MOONHAUL_VENV
   train-all     retrain the bundled policies: capture the scripted expert's hand-overs
                 (runs/handovers/scripted.json), clone the expert into lift, transport and
-                place with configs/train/<phase>_warm.toml's warm start (no PPO) into
-                runs/<phase>-warm/, then copy each policy and its training curve to
-                assets/policies/, printing each phase's wall time
+                place with configs/train/<phase>_warm.toml's warm start (no PPO), once per
+                seed configs/train/bundle.toml lists, into runs/<phase>-warm/seed-<S>/; where
+                a phase lists several seeds, fly each through the deployed stack on the
+                validation missions and keep the one that completes the most; copy each
+                chosen policy and its training curve to assets/policies/ (selection.json
+                records every candidate's score), printing each phase's wall time
   bench [ARGS]  the side-by-side benchmark: the simulator against MuJoCo and the PPO update
                 and act against rsl_rl 5.5.1, alternating, printing the ratios (installs
                 mujoco and rsl_rl into a separate venv, MOONHAUL_BENCH_VENV or .venv-bench;
@@ -82,7 +86,7 @@ fn main() -> ExitCode {
         Some("demo") => demo(),
         Some("test") => test(&args[1..]),
         Some("setup") => setup().and_then(|venv| setup_python(&venv)),
-        Some("train-all") => train_all(),
+        Some("train-all") => train_all::train_all(),
         Some("bench") => bench(&args[1..]),
         Some("vendor-check") => vendor_check::vendor_check(),
         Some("cargo") => setup().and_then(|venv| cargo(&venv, &args[1..])),
@@ -355,88 +359,6 @@ fn demo() -> Result<(), String> {
          summary in {out}/summary.json, the mission profile in {out}/mission_profile.png, CAN \
          traffic in {can_log}"
     );
-    Ok(())
-}
-
-/// The phases whose policies are bundled in `assets/policies/`.
-const PHASES: [&str; 3] = ["lift", "transport", "place"];
-
-/// Warm-starts every phase policy from the scripted expert with its `<phase>_warm.toml`, one
-/// after another (each uses every core), and bundles the results:
-/// `assets/policies/<phase>.safetensors`, the cloned expert (with its provenance in the
-/// metadata), and `<phase>.metrics.csv` (its training curve, for `moonhaul eval`'s plots).
-fn train_all() -> Result<(), String> {
-    let venv = setup()?;
-    let root = workspace_root();
-    run(cargo_command(&venv).args([
-        "build",
-        "--release",
-        "--package",
-        "moonhaul-learn",
-        "--bin",
-        "moonhaul-train",
-    ]))?;
-    // Transport and place mix in worlds that start where the scripted expert handed over
-    // through the deployed stack (their configs' `[world] handovers`).
-    run(cargo_command(&venv).args([
-        "run",
-        "--quiet",
-        "--release",
-        "--package",
-        "moonhaul",
-        "--bin",
-        "moonhaul",
-        "--",
-        "sim",
-        "handovers",
-        "--out",
-        "runs/handovers/scripted.json",
-        "--force",
-    ]))?;
-    let assets = root.join("assets").join("policies");
-    std::fs::create_dir_all(&assets)
-        .map_err(|e| format!("cannot create {}: {e}", assets.display()))?;
-    for phase in PHASES {
-        let started = Instant::now();
-        let out = root.join("runs").join(format!("{phase}-warm"));
-        let config = format!("configs/train/{phase}_warm.toml");
-        let out_arg = out.to_string_lossy().into_owned();
-        let train = |extra: &[&str]| {
-            let mut args = vec![
-                "run",
-                "--quiet",
-                "--release",
-                "--package",
-                "moonhaul-learn",
-                "--bin",
-                "moonhaul-train",
-                "--",
-                "--config",
-                &config,
-                "--out",
-                &out_arg,
-            ];
-            args.extend_from_slice(extra);
-            run(cargo_command(&venv).args(args))
-        };
-        // The cloned expert: DAgger and the critic's warm-up, no PPO. PPO from the clone has
-        // not yet flown more missions through the deployed stack than the clone itself
-        // (docs/measurements/2026-12-04.md), so the bundle is the clone.
-        train(&["--iterations", "0"])?;
-        for (from, to) in [
-            ("policy.safetensors", format!("{phase}.safetensors")),
-            ("metrics.csv", format!("{phase}.metrics.csv")),
-        ] {
-            let (from, to) = (out.join(from), assets.join(to));
-            std::fs::copy(&from, &to)
-                .map_err(|e| format!("cannot copy {} to {}: {e}", from.display(), to.display()))?;
-        }
-        eprintln!(
-            "xtask: {phase} policy bundled in {} ({:.0} min)",
-            assets.display(),
-            started.elapsed().as_secs_f64() / 60.0
-        );
-    }
     Ok(())
 }
 

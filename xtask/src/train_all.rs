@@ -1,0 +1,449 @@
+//! `cargo xtask train-all`: retrains the bundled phase policies and picks, among the seeds it
+//! trains, the one that flies the most validation missions through the deployed stack.
+//!
+//! Why select at all: one place recipe, drawn with three seeds, completed 75 to 100 of 100
+//! deployed sledge missions (docs/measurements/2026-12-07-episode-past-clock.md); a bundle that
+//! is one draw of it is a lottery. The issue asks to select by deployed completion, not by
+//! training return, so the score is missions completed by `moonhaul eval`'s deployed stack
+//! (onboard tick, gate, pipeline, clamp). Validation missions are their own stream
+//! (`configs/train/bundle.toml [validation] seed`), never the reported test missions
+//! (`moonhaul eval`'s default seed 1000), and fly only training payloads, so the sledge and the
+//! test crates stay unseen.
+//!
+//! Phases are chosen in mission order, each flown with the phases already chosen before it and
+//! the first-listed seed of those after it: a phase is judged with the partners it will be
+//! bundled with wherever they are known.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use serde::Deserialize;
+
+use crate::{cargo_command, run, setup, workspace_root};
+
+/// The bundled phases, in mission order.
+const PHASES: [&str; 3] = ["lift", "transport", "place"];
+
+const CONFIG: &str = "configs/train/bundle.toml";
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BundleConfig {
+    validation: Validation,
+    seeds: Seeds,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Validation {
+    payloads: Vec<String>,
+    episodes: u32,
+    seed: u64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Seeds {
+    lift: Vec<u64>,
+    transport: Vec<u64>,
+    place: Vec<u64>,
+}
+
+impl Seeds {
+    fn of(&self, phase: &str) -> &[u64] {
+        match phase {
+            "lift" => &self.lift,
+            "transport" => &self.transport,
+            _ => &self.place,
+        }
+    }
+}
+
+impl BundleConfig {
+    fn parse(text: &str, file: &str) -> Result<Self, String> {
+        let config: BundleConfig = toml::from_str(text).map_err(|e| format!("{file}: {e}"))?;
+        for phase in PHASES {
+            let seeds = config.seeds.of(phase);
+            if seeds.is_empty() {
+                return Err(format!(
+                    "{file}: seeds.{phase} is empty: give at least one seed"
+                ));
+            }
+            if let Some(s) = seeds
+                .iter()
+                .enumerate()
+                .find_map(|(i, s)| seeds[..i].contains(s).then_some(s))
+            {
+                return Err(format!("{file}: seeds.{phase} lists seed {s} twice"));
+            }
+        }
+        let v = &config.validation;
+        if !(1..=10_000).contains(&v.episodes) {
+            return Err(format!(
+                "{file}: validation.episodes = {} must be 1 to 10000",
+                v.episodes
+            ));
+        }
+        if v.payloads.is_empty() {
+            return Err(format!("{file}: validation.payloads is empty"));
+        }
+        if let Some(p) = v
+            .payloads
+            .iter()
+            .find(|p| p.trim().is_empty() || p.contains(','))
+        {
+            return Err(format!(
+                "{file}: validation.payloads holds {p:?}: one payload name or URDF path per entry"
+            ));
+        }
+        Ok(config)
+    }
+
+    fn validation_needed(&self) -> bool {
+        PHASES.iter().any(|p| self.seeds.of(p).len() > 1)
+    }
+}
+
+/// One candidate's validation: missions completed per payload, in `validation.payloads` order.
+#[derive(Debug, Clone, PartialEq)]
+struct Score {
+    seed: u64,
+    completed: Vec<u32>,
+}
+
+impl Score {
+    fn total(&self) -> u32 {
+        self.completed.iter().sum()
+    }
+
+    fn worst(&self) -> u32 {
+        self.completed.iter().copied().min().unwrap_or(0)
+    }
+}
+
+/// The best candidate: the most missions completed in all, then the best worst payload, then
+/// the earlier-listed seed.
+fn best(scores: &[Score]) -> Option<&Score> {
+    scores.iter().reduce(|best, s| {
+        if (s.total(), s.worst()) > (best.total(), best.worst()) {
+            s
+        } else {
+            best
+        }
+    })
+}
+
+/// Missions completed per payload, from `moonhaul eval --json`'s
+/// `<payload>.learned.deployed.clamp.completed_rate`.
+fn completed_missions(
+    report: &str,
+    payloads: &[String],
+    episodes: u32,
+) -> Result<Vec<u32>, String> {
+    let report: serde_json::Value = serde_json::from_str(report.trim())
+        .map_err(|e| format!("moonhaul eval --json printed no JSON report: {e}"))?;
+    payloads
+        .iter()
+        .map(|p| {
+            // A URDF payload is reported under its file stem.
+            let name = Path::new(p)
+                .file_stem()
+                .map_or(p.as_str(), |s| s.to_str().unwrap_or(p));
+            let rate = report
+                .pointer(&format!("/{name}/learned/deployed/clamp/completed_rate"))
+                .and_then(serde_json::Value::as_f64)
+                .ok_or_else(|| {
+                    format!("moonhaul eval's report has no {name}.learned.deployed.clamp.completed_rate")
+                })?;
+            Ok((rate * f64::from(episodes)).round() as u32)
+        })
+        .collect()
+}
+
+/// Retrains every phase with every listed seed, selects one per phase by validation missions
+/// (where more than one seed is listed), and bundles it into `assets/policies/`, with
+/// `selection.json` recording every candidate's score.
+pub fn train_all() -> Result<(), String> {
+    let root = workspace_root();
+    let config_path = root.join(CONFIG);
+    let text = std::fs::read_to_string(&config_path)
+        .map_err(|e| format!("cannot read {}: {e}", config_path.display()))?;
+    let config = BundleConfig::parse(&text, CONFIG)?;
+    let venv = setup()?;
+    let mut packages = vec!["--package", "moonhaul-learn", "--bin", "moonhaul-train"];
+    if config.validation_needed() {
+        packages.extend(["--package", "moonhaul", "--bin", "moonhaul"]);
+    }
+    run(cargo_command(&venv)
+        .args(["build", "--release"])
+        .args(&packages))?;
+    // Transport and place mix in worlds that start where the scripted expert handed over
+    // through the deployed stack (their configs' `[world] handovers`).
+    run(moonhaul(&venv).args([
+        "sim",
+        "handovers",
+        "--out",
+        "runs/handovers/scripted.json",
+        "--force",
+    ]))?;
+    let run_dir = |phase: &str, seed: u64| {
+        root.join("runs")
+            .join(format!("{phase}-warm"))
+            .join(format!("seed-{seed}"))
+    };
+    let mut phase_s = [0.0f64; 3];
+    for (k, phase) in PHASES.into_iter().enumerate() {
+        for &seed in config.seeds.of(phase) {
+            let started = Instant::now();
+            let out = run_dir(phase, seed);
+            // The cloned expert: DAgger and the critic's warm-up, no PPO. PPO from the clone
+            // has not yet flown more missions through the deployed stack than the clone itself
+            // (docs/measurements/2026-12-04.md), so the bundle is the clone.
+            run(cargo_command(&venv)
+                .args(["run", "--quiet", "--release"])
+                .args([
+                    "--package",
+                    "moonhaul-learn",
+                    "--bin",
+                    "moonhaul-train",
+                    "--",
+                ])
+                .arg("--config")
+                .arg(format!("configs/train/{phase}_warm.toml"))
+                .arg("--seed")
+                .arg(seed.to_string())
+                .args(["--iterations", "0", "--out"])
+                .arg(&out))?;
+            phase_s[k] += started.elapsed().as_secs_f64();
+        }
+    }
+    // Chosen seeds, the first listed until a phase's validation picks.
+    let mut chosen: Vec<u64> = PHASES.iter().map(|p| config.seeds.of(p)[0]).collect();
+    let mut selection = serde_json::Map::new();
+    for (k, phase) in PHASES.into_iter().enumerate() {
+        let seeds = config.seeds.of(phase);
+        if seeds.len() == 1 {
+            continue;
+        }
+        let started = Instant::now();
+        let mut scores = Vec::new();
+        for &seed in seeds {
+            let team = root
+                .join("runs")
+                .join("train-all-validation")
+                .join(format!("{phase}-seed-{seed}"));
+            std::fs::create_dir_all(&team)
+                .map_err(|e| format!("cannot create {}: {e}", team.display()))?;
+            for (j, other) in PHASES.into_iter().enumerate() {
+                let from_seed = if j == k { seed } else { chosen[j] };
+                copy(
+                    &run_dir(other, from_seed).join("policy.safetensors"),
+                    &team.join(format!("{other}.safetensors")),
+                )?;
+            }
+            let v = &config.validation;
+            let mut eval = moonhaul(&venv);
+            eval.arg("eval")
+                .arg("--policies")
+                .arg(&team)
+                .args(["--no-scripted", "--json", "--payload"])
+                .arg(v.payloads.join(","))
+                .arg("--episodes")
+                .arg(v.episodes.to_string())
+                .arg("--seed")
+                .arg(v.seed.to_string());
+            let report = output(&mut eval)?;
+            let completed = completed_missions(&report, &v.payloads, v.episodes)?;
+            eprintln!(
+                "xtask: {phase} seed {seed}: {} of {} validation missions completed ({})",
+                completed.iter().sum::<u32>(),
+                v.episodes as usize * v.payloads.len(),
+                v.payloads
+                    .iter()
+                    .zip(&completed)
+                    .map(|(p, c)| format!("{p} {c}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            scores.push(Score { seed, completed });
+        }
+        let pick = best(&scores).expect("seeds are never empty (checked)");
+        chosen[k] = pick.seed;
+        selection.insert(
+            phase.into(),
+            serde_json::json!({
+                "chosen_seed": pick.seed,
+                "partners": PHASES.iter().zip(&chosen).filter(|(p, _)| **p != phase)
+                    .map(|(p, s)| (p.to_string(), serde_json::json!(s)))
+                    .collect::<serde_json::Map<_, _>>(),
+                "candidates": scores.iter().map(|s| serde_json::json!({
+                    "seed": s.seed,
+                    "completed": config.validation.payloads.iter().zip(&s.completed)
+                        .map(|(p, c)| (p.clone(), serde_json::json!(c)))
+                        .collect::<serde_json::Map<_, _>>(),
+                })).collect::<Vec<_>>(),
+            }),
+        );
+        phase_s[k] += started.elapsed().as_secs_f64();
+    }
+    let assets = root.join("assets").join("policies");
+    std::fs::create_dir_all(&assets)
+        .map_err(|e| format!("cannot create {}: {e}", assets.display()))?;
+    for (k, phase) in PHASES.into_iter().enumerate() {
+        let out = run_dir(phase, chosen[k]);
+        copy(
+            &out.join("policy.safetensors"),
+            &assets.join(format!("{phase}.safetensors")),
+        )?;
+        copy(
+            &out.join("metrics.csv"),
+            &assets.join(format!("{phase}.metrics.csv")),
+        )?;
+        eprintln!(
+            "xtask: {phase} policy (seed {}) bundled in {}; {} seed(s) trained{} in {:.1} min",
+            chosen[k],
+            assets.display(),
+            config.seeds.of(phase).len(),
+            if config.seeds.of(phase).len() > 1 {
+                " and validated"
+            } else {
+                ""
+            },
+            phase_s[k] / 60.0
+        );
+    }
+    let record = serde_json::json!({
+        "config": CONFIG,
+        "validation": {
+            "payloads": config.validation.payloads,
+            "episodes": config.validation.episodes,
+            "seed": config.validation.seed,
+        },
+        "seeds": PHASES.iter().zip(&chosen)
+            .map(|(p, s)| (p.to_string(), serde_json::json!(s)))
+            .collect::<serde_json::Map<_, _>>(),
+        "selection": selection,
+        "wall_time_s": PHASES.iter().zip(phase_s)
+            .map(|(p, s)| (p.to_string(), serde_json::json!(s.round())))
+            .collect::<serde_json::Map<_, _>>(),
+    });
+    let path = assets.join("selection.json");
+    let text = serde_json::to_string_pretty(&record).expect("plain JSON values") + "\n";
+    write_atomically(&path, &text)
+}
+
+/// `moonhaul` (release, built above) as a command in the workspace root.
+fn moonhaul(venv: &Path) -> Command {
+    let mut command = cargo_command(venv);
+    command.args([
+        "run",
+        "--quiet",
+        "--release",
+        "--package",
+        "moonhaul",
+        "--bin",
+        "moonhaul",
+        "--",
+    ]);
+    command
+}
+
+/// Runs `command`, its stderr shown, and returns its stdout.
+fn output(command: &mut Command) -> Result<String, String> {
+    let out = command
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .map_err(|e| format!("cannot start {:?}: {e}", command.get_program()))?;
+    if !out.status.success() {
+        return Err(format!(
+            "{:?} failed ({})",
+            command.get_args().collect::<Vec<_>>(),
+            out.status
+        ));
+    }
+    String::from_utf8(out.stdout).map_err(|e| format!("moonhaul eval printed non-UTF-8: {e}"))
+}
+
+fn copy(from: &Path, to: &Path) -> Result<(), String> {
+    std::fs::copy(from, to)
+        .map(drop)
+        .map_err(|e| format!("cannot copy {} to {}: {e}", from.display(), to.display()))
+}
+
+/// Writes through a temporary file beside `path`, so a killed run leaves the old file or the new.
+fn write_atomically(path: &Path, text: &str) -> Result<(), String> {
+    let tmp = PathBuf::from(format!("{}.tmp", path.display()));
+    std::fs::write(&tmp, text)
+        .and_then(|()| std::fs::rename(&tmp, path))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SHIPPED: &str = include_str!("../../configs/train/bundle.toml");
+
+    #[test]
+    fn the_shipped_config_parses() {
+        let c = BundleConfig::parse(SHIPPED, CONFIG).unwrap();
+        assert!(PHASES.iter().all(|p| !c.seeds.of(p).is_empty()));
+    }
+
+    #[test]
+    fn a_bad_config_is_refused_naming_the_field() {
+        let good = "[validation]\npayloads = [\"box\"]\nepisodes = 10\nseed = 5\n\
+                    [seeds]\nlift = [1]\ntransport = [1]\nplace = [1, 2]\n";
+        assert!(BundleConfig::parse(good, "b.toml").is_ok());
+        for (bad, field) in [
+            (good.replace("place = [1, 2]", "place = []"), "seeds.place"),
+            (
+                good.replace("place = [1, 2]", "place = [2, 2]"),
+                "seeds.place",
+            ),
+            (
+                good.replace("episodes = 10", "episodes = 0"),
+                "validation.episodes",
+            ),
+            (good.replace("[\"box\"]", "[]"), "validation.payloads"),
+            (
+                good.replace("[\"box\"]", "[\"box,bricks\"]"),
+                "validation.payloads",
+            ),
+            (good.replace("seed = 5", "seed = 5\nextra = 1"), "extra"),
+            (good.replace("lift = [1]\n", ""), "lift"),
+        ] {
+            let e = BundleConfig::parse(&bad, "b.toml").unwrap_err();
+            assert!(e.contains("b.toml") && e.contains(field), "{field}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_best_seed_completes_most_then_has_the_best_worst_payload_then_comes_first() {
+        let s = |seed, completed: &[u32]| Score {
+            seed,
+            completed: completed.to_vec(),
+        };
+        assert_eq!(best(&[s(1, &[48, 47]), s(2, &[50, 49])]).unwrap().seed, 2);
+        assert_eq!(best(&[s(1, &[50, 44]), s(2, &[47, 47])]).unwrap().seed, 2);
+        assert_eq!(best(&[s(3, &[47, 47]), s(1, &[47, 47])]).unwrap().seed, 3);
+    }
+
+    #[test]
+    fn completed_missions_are_read_from_the_eval_report_by_payload_name() {
+        let report = r#"{"box":{"learned":{"deployed":{"clamp":{"completed_rate":0.96}}}},
+            "payload_long_heavy":{"learned":{"deployed":{"clamp":{"completed_rate":0.5}}}}}"#;
+        let payloads = [
+            "box".to_string(),
+            "tests/data/payload_long_heavy.urdf".to_string(),
+        ];
+        assert_eq!(completed_missions(report, &payloads, 50).unwrap(), [48, 25]);
+        let e = completed_missions(report, &["bricks".to_string()], 50).unwrap_err();
+        assert!(
+            e.contains("bricks.learned.deployed.clamp.completed_rate"),
+            "{e}"
+        );
+        assert!(completed_missions("progress\n", &payloads, 50).is_err());
+    }
+}
