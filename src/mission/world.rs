@@ -204,6 +204,10 @@ pub async fn run(args: WorldArgs) -> Result<()> {
     let mut reached_place = false;
     let mut ended_at_s: Option<f64> = None;
     let mut dropped = 0u64;
+    // Latched once a unit opens its gripper (the world never grasps again). Not the grasp's
+    // attachment: a grasp the simulator broke by overload leaves the gripper closed on nothing,
+    // and the log must not read it as a release.
+    let mut gripper_open = [false; UNITS];
     let wall_start = Instant::now();
     let outcome: String = 'mission: loop {
         let now_s = tick as f64 * period_s;
@@ -294,7 +298,8 @@ pub async fn run(args: WorldArgs) -> Result<()> {
                 Some(c) => moonhaul_coord::clamp::hold_command(&c.command),
                 None => moonhaul_coord::clamp::anchor_command(&state.units[i].state),
             };
-            if link.command.is_some_and(|c| c.grasp_open) && state.units[i].grasp.attached {
+            if link.command.is_some_and(|c| c.grasp_open) && !gripper_open[i] {
+                gripper_open[i] = true;
                 env.release_grasp(i);
             }
         }
@@ -305,7 +310,7 @@ pub async fn run(args: WorldArgs) -> Result<()> {
             .iter()
             .map(|l| l.command.filter(|_| !l.gone).map(|c| c.phase))
             .collect();
-        log.write(&frame(tick, &state, &phases))?;
+        log.write(&frame(tick, &state, &phases, &gripper_open))?;
         if !state.is_finite() {
             break 'mission "the simulation diverged".into();
         }
@@ -359,7 +364,12 @@ pub fn sense(
     }
 }
 
-fn frame(tick: u64, state: &EnvState, phases: &[Option<Phase>]) -> WorldFrame {
+fn frame(
+    tick: u64,
+    state: &EnvState,
+    phases: &[Option<Phase>],
+    gripper_open: &[bool; UNITS],
+) -> WorldFrame {
     let p = &state.payload;
     let pose = |iso: &nalgebra::Isometry3<f64>| {
         let t = iso.translation.vector;
@@ -397,7 +407,7 @@ fn frame(tick: u64, state: &EnvState, phases: &[Option<Phase>]) -> WorldFrame {
             .map(|u| u.state.arm.position_rad)
             .collect(),
         unit_phase: phases.to_vec(),
-        grasp_closed: state.units.iter().map(|u| u.grasp.attached).collect(),
+        grasp_closed: gripper_open.iter().map(|open| !open).collect(),
     }
 }
 
@@ -416,4 +426,19 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     let bytes = serde_json::to_vec_pretty(value).context("encoding JSON")?;
     moonhaul_core::atomic_file::write(path, &bytes)
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A grasp the simulator broke (detached, the gripper never opened) is logged closed, so
+    /// `moonhaul log` never reads a dropped payload as placed.
+    #[test]
+    fn a_broken_grasp_is_logged_closed_and_only_an_opened_gripper_as_released() {
+        let state = EnvState::default();
+        assert!(state.units.iter().all(|u| !u.grasp.attached));
+        let f = frame(0, &state, &[None; UNITS], &[false, true]);
+        assert_eq!(f.grasp_closed, [true, false]);
+    }
 }

@@ -102,6 +102,7 @@ pub struct WorldFrame {
     pub arm_position_rad: Vec<[f64; ARM_JOINTS]>,
     /// The phase each unit reported with its last command (`None`: no command this step).
     pub unit_phase: Vec<Option<Phase>>,
-    /// Whether each unit's grasp still holds the payload.
+    /// Whether each unit's gripper is still closed (its unit has not opened it). A grasp the
+    /// simulator broke by overload stays closed, on nothing: only an opened gripper is a release.
     pub grasp_closed: Vec<bool>,
 }
