@@ -517,6 +517,26 @@ mod tests {
         (scene, stack, MissionPlan::shipped().unwrap())
     }
 
+    /// `run`'s missions flown by the scripted controller through the deployed stack.
+    fn fly_scripted(
+        scene: &SceneModel,
+        stack: &Stack,
+        plan: MissionPlan,
+        run: Episodes,
+        capture: bool,
+    ) -> Vec<DeployedMission> {
+        let scripted = || Ok(Controller::Scripted(plan));
+        missions(
+            scene,
+            stack,
+            &scripted,
+            run,
+            capture,
+            &ProgressBar::hidden(),
+        )
+        .unwrap()
+    }
+
     /// The scripted controller through the whole deployed stack, on the paper's randomized
     /// terrain (2 cm peak to peak): the goal's ground lies a few millimetres above or below
     /// the start's (simulator truth). Higher, a placement aiming at a fixed depth below the
@@ -534,16 +554,7 @@ mod tests {
             seed: 1000,
             threads: 0,
         };
-        let scripted = || Ok(Controller::Scripted(plan));
-        let missions = missions(
-            &scene,
-            &stack,
-            &scripted,
-            run,
-            false,
-            &ProgressBar::hidden(),
-        )
-        .unwrap();
+        let missions = fly_scripted(&scene, &stack, plan, run, false);
         let outcomes: Vec<&str> = missions.iter().map(|m| m.outcome.as_str()).collect();
         // The bar of `moonhaul eval` (measured over 100 missions in the README) less one.
         let completed = outcomes.iter().filter(|o| **o == "completed").count();
@@ -582,16 +593,7 @@ mod tests {
             seed: 1000,
             threads: 0,
         };
-        let scripted = || Ok(Controller::Scripted(plan));
-        let missions = missions(
-            &scene,
-            &stack,
-            &scripted,
-            run,
-            false,
-            &ProgressBar::hidden(),
-        )
-        .unwrap();
+        let missions = fly_scripted(&scene, &stack, plan, run, false);
         assert!(!missions[0].completed);
         let outcome = &missions[0].outcome;
         assert!(outcome.starts_with("a grasp broke in "), "{outcome}");
@@ -615,9 +617,7 @@ mod tests {
             seed: 77,
             threads: 0,
         };
-        let scripted = || Ok(Controller::Scripted(plan));
-        let missions =
-            missions(&scene, &stack, &scripted, run, true, &ProgressBar::hidden()).unwrap();
+        let missions = fly_scripted(&scene, &stack, plan, run, true);
         let handovers: Vec<_> = missions.into_iter().flat_map(|m| m.handovers).collect();
         let phases: Vec<Phase> = handovers.iter().map(|h| h.phase).collect();
         assert_eq!(

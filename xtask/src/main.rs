@@ -299,20 +299,8 @@ fn demo() -> Result<(), String> {
     )?;
     let out = root.join("runs").join("demo");
     let out = out.to_string_lossy();
-    let moonhaul = |args: &[&str]| {
-        let mut all = vec![
-            "run",
-            "--quiet",
-            "--release",
-            "--package",
-            "moonhaul",
-            "--bin",
-            "moonhaul",
-            "--",
-        ];
-        all.extend_from_slice(args);
-        run(Command::new(&cargo).current_dir(&root).args(all))
-    };
+    let moonhaul =
+        |args: &[&str]| run(with_run_moonhaul(Command::new(&cargo).current_dir(&root)).args(args));
     eprintln!("xtask: checking the unit model assets/unit.urdf");
     moonhaul(&["urdf", "check", "assets/unit.urdf"])?;
     // The mission: three payloads, three trials each, as the paper flew them; every unit its
@@ -400,6 +388,20 @@ fn bench(extra: &[String]) -> Result<(), String> {
         .arg("--python")
         .arg(&python)
         .args(extra))
+}
+
+/// `command` (a cargo) made `cargo run` of the release `moonhaul` binary; its arguments follow.
+fn with_run_moonhaul(command: &mut Command) -> &mut Command {
+    command.args([
+        "run",
+        "--quiet",
+        "--release",
+        "--package",
+        "moonhaul",
+        "--bin",
+        "moonhaul",
+        "--",
+    ])
 }
 
 fn run(command: &mut Command) -> Result<(), String> {

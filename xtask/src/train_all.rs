@@ -20,7 +20,7 @@ use std::time::Instant;
 
 use serde::Deserialize;
 
-use crate::{cargo_command, run, setup, workspace_root};
+use crate::{cargo_command, run, setup, with_run_moonhaul, workspace_root};
 
 /// The bundled phases, in mission order.
 const PHASES: [&str; 3] = ["lift", "transport", "place"];
@@ -334,16 +334,7 @@ pub fn train_all() -> Result<(), String> {
 /// `moonhaul` (release, built above) as a command in the workspace root.
 fn moonhaul(venv: &Path) -> Command {
     let mut command = cargo_command(venv);
-    command.args([
-        "run",
-        "--quiet",
-        "--release",
-        "--package",
-        "moonhaul",
-        "--bin",
-        "moonhaul",
-        "--",
-    ]);
+    with_run_moonhaul(&mut command);
     command
 }
 
