@@ -251,8 +251,8 @@ pub fn missions(
             let phase = units[0].0.phase();
             // A grasp the sim broke by overload is a failed mission wherever it happened, even
             // if the gate, reading no load on that wrist, then ends the placement.
-            if state.grasp_broken && mission.first_stop.is_none() {
-                mission.first_stop = Some(format!("a grasp broke in {phase}"));
+            if state.grasp_broken && mission.first_failure.is_none() {
+                mission.first_failure = Some(format!("a grasp broke in {phase}"));
             }
             seen_place |= phase == Phase::Place;
             if phase != last_phase {
@@ -275,8 +275,8 @@ pub fn missions(
             seen_place && ended_at.is_some() && released && !faulted && !state.grasp_broken;
         mission.outcome = if mission.completed {
             "completed".into()
-        } else if let Some(stop) = &mission.first_stop {
-            stop.clone()
+        } else if let Some(failure) = &mission.first_failure {
+            failure.clone()
         } else if !state.is_finite() {
             "the simulation diverged".into()
         } else if ended_at.is_none() {
@@ -343,14 +343,14 @@ struct Tally {
     handovers: Vec<HandOver>,
     /// The first failure, with its phase: a safety stop raised by a unit itself (not one it
     /// heard), or a grasp broken by overload.
-    first_stop: Option<String>,
+    first_failure: Option<String>,
     /// The phase of the unit's last tick, for naming where a stop happened.
     last_phase: [Phase; UNITS],
 }
 
 impl Tally {
     fn unit_tick(&mut self, unit: usize, r: &TickRecord, grasped: bool) {
-        if let (None, Some(HoldReason::SafetyStop(reason))) = (&self.first_stop, r.hold) {
+        if let (None, Some(HoldReason::SafetyStop(reason))) = (&self.first_failure, r.hold) {
             if reason.announce() && self.last_phase[unit] != Phase::Idle {
                 let why = match reason {
                     StopReason::Fault(kind) => format!("{kind:?} fault").to_lowercase(),
@@ -363,7 +363,7 @@ impl Tally {
                     StopReason::Operator | StopReason::PeerStop { .. } => unreachable!("announce"),
                 };
                 let phase = self.last_phase[unit];
-                self.first_stop = Some(format!("unit {unit} stopped in {phase}: {why}"));
+                self.first_failure = Some(format!("unit {unit} stopped in {phase}: {why}"));
             }
         }
         self.last_phase[unit] = r.phase;
