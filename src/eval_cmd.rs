@@ -166,8 +166,23 @@ fn paper_value(case: &str, metric: &str) -> Option<f64> {
         .map(|(_, _, v)| *v)
 }
 
-/// The summary of one case's episodes.
+/// The summary of one case's episodes: per metric `{"mean", "sd"}`, and `"paper"` where the
+/// paper reports the metric (so a reader of `--json`, such as `cargo xtask train-all`'s lift
+/// selection, compares against the same figures as the table).
 fn summarize(case: Case, episodes: &[Vec<EpisodeRow>]) -> Result<Value> {
+    let mut summary = summarize_metrics(case, episodes)?;
+    if let Value::Object(metrics) = &mut summary {
+        for (metric, value) in metrics.iter_mut() {
+            if let (Some(paper), Value::Object(stats)) = (paper_value(&case.name(), metric), value)
+            {
+                stats.insert("paper".into(), json!(paper));
+            }
+        }
+    }
+    Ok(summary)
+}
+
+fn summarize_metrics(case: Case, episodes: &[Vec<EpisodeRow>]) -> Result<Value> {
     Ok(match case.phase {
         Phase::Lift => lift_summary(
             &episodes

@@ -115,7 +115,12 @@ fn eval_writes_every_case_and_its_metrics_recompute_from_the_csvs() {
         let target_mm = h.parse::<f64>().unwrap() * 1000.0;
         assert!((error - target_mm).abs() < 20.0, "{h}: {error}");
         assert_eq!(lift["success_rate"]["mean"], 0.0);
+        // Each metric the paper reports carries its figure, the one the table prints.
+        assert!(lift["final_height_error_mm"]["paper"].as_f64().unwrap() > 5.0);
+        assert!(lift["success_rate"].get("paper").is_none());
     }
+    assert_eq!(box_["lift"]["0.5"]["final_height_error_mm"]["paper"], 17.4);
+    assert_eq!(box_["place"]["touchdown_speed_mps"]["paper"], 0.030);
     assert!(
         box_["transport"]["rms_velocity_error_mps"]["mean"]
             .as_f64()
