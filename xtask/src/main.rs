@@ -52,7 +52,7 @@ const PYTHON_PACKAGES: [&str; 4] = [
 ];
 
 const USAGE: &str =
-    "usage: cargo xtask <demo|test|setup|train-all|bench|vendor-check|cargo ARGS...>
+    "usage: cargo xtask <demo|test|setup|train-all [--keep-trained]|bench|vendor-check|cargo ARGS...>
 
   demo          run the main job: lift, transport and place a payload in simulation with
                 two wheel-arm units (the learned phase policies through gate and clamp), and
@@ -69,7 +69,9 @@ const USAGE: &str =
                 a phase lists several seeds, fly each through the deployed stack on the
                 validation missions and keep the one that completes the most; copy each
                 chosen policy and its training curve to assets/policies/ (selection.json
-                records every candidate's score), printing each phase's wall time
+                records every candidate's score), printing each phase's wall time;
+                --keep-trained finishes a run that stopped after training: seeds whose
+                run folder holds a policy, and an existing capture, are kept
   bench [ARGS]  the side-by-side benchmark: the simulator against MuJoCo and the PPO update
                 and act against rsl_rl 5.5.1, alternating, printing the ratios (installs
                 mujoco and rsl_rl into a separate venv, MOONHAUL_BENCH_VENV or .venv-bench;
@@ -86,7 +88,11 @@ fn main() -> ExitCode {
         Some("demo") => demo(),
         Some("test") => test(&args[1..]),
         Some("setup") => setup().and_then(|venv| setup_python(&venv)),
-        Some("train-all") => train_all::train_all(),
+        Some("train-all") => match &args[1..] {
+            [] => train_all::train_all(false),
+            [flag] if flag == "--keep-trained" => train_all::train_all(true),
+            _ => Err(USAGE.to_owned()),
+        },
         Some("bench") => bench(&args[1..]),
         Some("vendor-check") => vendor_check::vendor_check(),
         Some("cargo") => setup().and_then(|venv| cargo(&venv, &args[1..])),

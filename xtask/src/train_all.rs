@@ -165,7 +165,8 @@ fn best(scores: &[Score]) -> Option<&Score> {
     })
 }
 
-/// The open-loop lift rows of `moonhaul eval --json`: `<payload>.learned.lift.<height>`'s
+/// The open-loop lift rows of `moonhaul eval --json` (the learned policies'; the scripted ones
+/// are under `scripted`): `<payload>.lift.<height>`'s
 /// `final_height_error_mm` (its `mean` and the `paper` figure eval prints beside it) and
 /// `success_rate.mean`.
 fn lift_accuracy(
@@ -183,17 +184,17 @@ fn lift_accuracy(
     for p in payloads {
         let name = report_name(p);
         let rows = report
-            .pointer(&format!("/{name}/learned/lift"))
+            .pointer(&format!("/{name}/lift"))
             .and_then(serde_json::Value::as_object)
             .filter(|rows| !rows.is_empty())
-            .ok_or_else(|| format!("moonhaul eval's report has no {name}.learned.lift rows"))?;
+            .ok_or_else(|| format!("moonhaul eval's report has no {name}.lift rows"))?;
         for (height, row) in rows {
             let number = |path: &str| {
                 row.pointer(path)
                     .and_then(serde_json::Value::as_f64)
                     .ok_or_else(|| {
                         format!(
-                            "moonhaul eval's report has no {name}.learned.lift.{height}{}",
+                            "moonhaul eval's report has no {name}.lift.{height}{}",
                             path.replace('/', ".")
                         )
                     })
@@ -243,7 +244,12 @@ fn completed_missions(
 /// Retrains every phase with every listed seed, selects one per phase by validation missions
 /// (where more than one seed is listed), and bundles it into `assets/policies/`, with
 /// `selection.json` recording every candidate's score.
-pub fn train_all() -> Result<(), String> {
+///
+/// With `keep_trained` (`--keep-trained`, to finish a run that stopped after training), a seed
+/// whose run directory already holds its `policy.safetensors` is not trained again, and an
+/// existing hand-over capture is kept; `selection.json` lists what was kept, and the phases'
+/// wall times then count only what ran.
+pub fn train_all(keep_trained: bool) -> Result<(), String> {
     let root = workspace_root();
     let config_path = root.join(CONFIG);
     let text = std::fs::read_to_string(&config_path)
@@ -261,13 +267,13 @@ pub fn train_all() -> Result<(), String> {
     }
     // Transport and place mix in worlds that start where the scripted expert handed over
     // through the deployed stack (their configs' `[world] handovers`).
-    run(moonhaul(&venv).args([
-        "sim",
-        "handovers",
-        "--out",
-        "runs/handovers/scripted.json",
-        "--force",
-    ]))?;
+    let handovers = "runs/handovers/scripted.json";
+    let mut kept = Vec::new();
+    if keep_trained && root.join(handovers).is_file() {
+        kept.push(handovers.to_string());
+    } else {
+        run(moonhaul(&venv).args(["sim", "handovers", "--out", handovers, "--force"]))?;
+    }
     let run_dir = |phase: &str, seed: u64| {
         root.join("runs")
             .join(format!("{phase}-warm"))
@@ -278,6 +284,11 @@ pub fn train_all() -> Result<(), String> {
         for &seed in config.seeds.of(phase) {
             let started = Instant::now();
             let out = run_dir(phase, seed);
+            if keep_trained && out.join("policy.safetensors").is_file() {
+                eprintln!("xtask: {phase} seed {seed}: kept {}", out.display());
+                kept.push(format!("{phase} seed {seed}"));
+                continue;
+            }
             // The cloned expert: DAgger and the critic's warm-up, no PPO. PPO from the clone
             // has not yet flown more missions through the deployed stack than the clone itself
             // (docs/measurements/2026-12-04.md), so the bundle is the clone.
@@ -427,6 +438,7 @@ pub fn train_all() -> Result<(), String> {
             .map(|(p, s)| (p.to_string(), serde_json::json!(s)))
             .collect::<serde_json::Map<_, _>>(),
         "selection": selection,
+        "kept_from_an_earlier_run": kept,
         "wall_time_s": PHASES.iter().zip(phase_s)
             .map(|(p, s)| (p.to_string(), serde_json::json!(s.round())))
             .collect::<serde_json::Map<_, _>>(),
@@ -553,8 +565,9 @@ mod tests {
             })
         };
         let report = serde_json::json!({
-            "box": {"learned": {"lift": {"0.3": row(5.0, 5.9, 1.0), "0.5": row(18.0, 17.4, 1.0)}}},
-            "bricks": {"learned": {"lift": {"0.3": row(2.95, 5.9, 0.9)}}},
+            "box": {"lift": {"0.3": row(5.0, 5.9, 1.0), "0.5": row(18.0, 17.4, 1.0)},
+                    "scripted": {"lift": {"0.3": row(1.0, 5.9, 1.0)}}},
+            "bricks": {"lift": {"0.3": row(2.95, 5.9, 0.9)}},
         })
         .to_string();
         let payloads = ["box".to_string(), "bricks".to_string()];
@@ -564,7 +577,7 @@ mod tests {
         assert!((a.error_over_paper - expected).abs() < 1e-12, "{a:?}");
         assert_eq!(lift_accuracy(&report, &payloads, 0.9).unwrap().rows_met, 2);
         let e = lift_accuracy(&report, &["sledge".to_string()], 0.95).unwrap_err();
-        assert!(e.contains("sledge.learned.lift"), "{e}");
+        assert!(e.contains("sledge.lift"), "{e}");
         let no_paper = report.replace("\"paper\":5.9,", "");
         let e = lift_accuracy(&no_paper, &payloads, 0.95).unwrap_err();
         assert!(e.contains("final_height_error_mm.paper"), "{e}");
