@@ -170,12 +170,10 @@ fn best(scores: &[Score]) -> Option<&Score> {
 /// `final_height_error_mm` (its `mean` and the `paper` figure eval prints beside it) and
 /// `success_rate.mean`.
 fn lift_accuracy(
-    report: &str,
+    report: &serde_json::Value,
     payloads: &[String],
     min_success_rate: f64,
 ) -> Result<LiftAccuracy, String> {
-    let report: serde_json::Value = serde_json::from_str(report.trim())
-        .map_err(|e| format!("moonhaul eval --json printed no JSON report: {e}"))?;
     let mut accuracy = LiftAccuracy {
         rows_met: 0,
         rows: 0,
@@ -210,6 +208,12 @@ fn lift_accuracy(
     Ok(accuracy)
 }
 
+/// `moonhaul eval --json`'s stdout as JSON.
+fn parse_report(stdout: &str) -> Result<serde_json::Value, String> {
+    serde_json::from_str(stdout.trim())
+        .map_err(|e| format!("moonhaul eval --json printed no JSON report: {e}"))
+}
+
 /// The name `moonhaul eval` reports a payload under: a URDF by its file stem.
 fn report_name(payload: &str) -> &str {
     Path::new(payload)
@@ -220,12 +224,10 @@ fn report_name(payload: &str) -> &str {
 /// Missions completed per payload, from `moonhaul eval --json`'s
 /// `<payload>.learned.deployed.clamp.completed_rate`.
 fn completed_missions(
-    report: &str,
+    report: &serde_json::Value,
     payloads: &[String],
     episodes: u32,
 ) -> Result<Vec<u32>, String> {
-    let report: serde_json::Value = serde_json::from_str(report.trim())
-        .map_err(|e| format!("moonhaul eval --json printed no JSON report: {e}"))?;
     payloads
         .iter()
         .map(|p| {
@@ -345,7 +347,7 @@ pub fn train_all(keep_trained: bool) -> Result<(), String> {
                 .arg(v.episodes.to_string())
                 .arg("--seed")
                 .arg(v.seed.to_string());
-            let report = output(&mut eval)?;
+            let report = parse_report(&output(&mut eval)?)?;
             let completed = completed_missions(&report, &v.payloads, v.episodes)?;
             let lift = (phase == "lift")
                 .then(|| lift_accuracy(&report, &v.payloads, v.lift_min_success_rate))
@@ -568,8 +570,7 @@ mod tests {
             "box": {"lift": {"0.3": row(5.0, 5.9, 1.0), "0.5": row(18.0, 17.4, 1.0)},
                     "scripted": {"lift": {"0.3": row(1.0, 5.9, 1.0)}}},
             "bricks": {"lift": {"0.3": row(2.95, 5.9, 0.9)}},
-        })
-        .to_string();
+        });
         let payloads = ["box".to_string(), "bricks".to_string()];
         let a = lift_accuracy(&report, &payloads, 0.95).unwrap();
         assert_eq!((a.rows_met, a.rows), (1, 3));
@@ -578,7 +579,7 @@ mod tests {
         assert_eq!(lift_accuracy(&report, &payloads, 0.9).unwrap().rows_met, 2);
         let e = lift_accuracy(&report, &["sledge".to_string()], 0.95).unwrap_err();
         assert!(e.contains("sledge.lift"), "{e}");
-        let no_paper = report.replace("\"paper\":5.9,", "");
+        let no_paper = parse_report(&report.to_string().replace("\"paper\":5.9,", "")).unwrap();
         let e = lift_accuracy(&no_paper, &payloads, 0.95).unwrap_err();
         assert!(e.contains("final_height_error_mm.paper"), "{e}");
     }
@@ -591,12 +592,16 @@ mod tests {
             "box".to_string(),
             "tests/data/payload_long_heavy.urdf".to_string(),
         ];
-        assert_eq!(completed_missions(report, &payloads, 50).unwrap(), [48, 25]);
-        let e = completed_missions(report, &["bricks".to_string()], 50).unwrap_err();
+        let report = parse_report(report).unwrap();
+        assert_eq!(
+            completed_missions(&report, &payloads, 50).unwrap(),
+            [48, 25]
+        );
+        let e = completed_missions(&report, &["bricks".to_string()], 50).unwrap_err();
         assert!(
             e.contains("bricks.learned.deployed.clamp.completed_rate"),
             "{e}"
         );
-        assert!(completed_missions("progress\n", &payloads, 50).is_err());
+        assert!(parse_report("progress\n").is_err());
     }
 }
