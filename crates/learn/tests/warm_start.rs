@@ -63,19 +63,18 @@ fn fresh_run(run: &std::path::Path) -> TrainOptions {
     }
 }
 
-/// The first rounds of a longer DAgger schedule, where the expert still drives most rows: the
-/// learning signal. Each round's fit reaches a lower behaviour-cloning loss than the round
-/// before, and the actor agrees with the expert on more of the states it visits, although
-/// every round adds states the actor's own actions reached.
-#[test]
-fn dagger_learns_while_the_expert_leads() {
+/// The first three rounds of a longer DAgger schedule (β = 1, 0.91, 0.82), where the expert
+/// still drives most rows, with DART noise of `action_noise_std` on every executed action:
+/// each round's behaviour-cloning loss and the share of visited states where the actor agreed
+/// with the expert before that round's fit.
+fn first_dagger_rounds(action_noise_std: f64) -> Vec<(f64, f64)> {
     let dir = tempfile::tempdir().unwrap();
     let mut config = tiny_config(dir.path());
     let warm = config.warm_start.as_mut().unwrap();
-    // β = 1, 0.91, 0.82 in the three rounds run.
     warm.rounds = 12;
     warm.epochs = 10;
     warm.minibatches = 8;
+    warm.action_noise_std = action_noise_std;
     let warm = warm.clone();
     tch::manual_seed(1);
     let mut env = make_env(&config, WORLDS, None).unwrap();
@@ -97,10 +96,19 @@ fn dagger_learns_while_the_expert_leads() {
         else {
             panic!("{stats:?}");
         };
-        println!("beta {beta:.2}: bc loss {bc_loss:.5}, agreement {expert_agreement:.3}");
+        println!("noise {action_noise_std}, beta {beta:.2}: bc loss {bc_loss:.5}, agreement {expert_agreement:.3}");
         rounds.push((bc_loss, expert_agreement));
     }
     assert_eq!(dagger.rounds_done(), 3);
+    rounds
+}
+
+/// The learning signal of plain DAgger: each round's fit reaches a lower behaviour-cloning
+/// loss than the round before, and the actor agrees with the expert on more of the states it
+/// visits, although every round adds states the actor's own actions reached.
+#[test]
+fn dagger_learns_while_the_expert_leads() {
+    let rounds = first_dagger_rounds(0.0);
     assert!(
         rounds.windows(2).all(|w| w[1].0 < w[0].0),
         "the BC loss did not fall round over round: {rounds:?}"
@@ -108,6 +116,24 @@ fn dagger_learns_while_the_expert_leads() {
     assert!(
         rounds.windows(2).all(|w| w[1].1 > w[0].1),
         "the agreement with the expert did not rise: {rounds:?}"
+    );
+}
+
+/// With the shipped config's DART noise the loss still falls round over round. Its agreement is
+/// not asserted: noisy rounds visit states around the expert's path whose labels are the
+/// expert's corrections, and after three rounds of 800 rows the actor's mean is within
+/// [`moonhaul_learn::distill::AGREEMENT_TOLERANCE`] on every component of ~1-2 % of them
+/// (against 87 % without noise), too few to order.
+#[test]
+fn dagger_with_dart_noise_learns_while_the_expert_leads() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/");
+    let shipped = TrainConfig::load(format!("{root}train/lift_warm.toml")).unwrap();
+    let noise = shipped.warm_start.unwrap().action_noise_std;
+    assert!(noise > 0.0, "lift_warm.toml no longer uses DART noise");
+    let rounds = first_dagger_rounds(noise);
+    assert!(
+        rounds.windows(2).all(|w| w[1].0 < w[0].0),
+        "the BC loss did not fall round over round: {rounds:?}"
     );
 }
 
