@@ -24,12 +24,19 @@ const WORLDS: usize = 4;
 /// so every round sees the same stretch of the task and its losses compare.
 const EPISODE_STEPS: usize = 100;
 
+/// The shipped configs.
+const CONFIGS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/");
+
+/// `configs/train/lift_warm.toml` as shipped.
+fn shipped_lift_warm() -> TrainConfig {
+    TrainConfig::load(format!("{CONFIGS}train/lift_warm.toml")).unwrap()
+}
+
 /// lift_warm.toml on a few worlds, with lift episodes of [`EPISODE_STEPS`] (a tasks.toml of
 /// its own in `dir`).
 fn tiny_config(dir: &std::path::Path) -> TrainConfig {
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/");
-    let mut config = TrainConfig::load(format!("{root}train/lift_warm.toml")).unwrap();
-    let tasks = std::fs::read_to_string(format!("{root}tasks.toml")).unwrap();
+    let mut config = shipped_lift_warm();
+    let tasks = std::fs::read_to_string(format!("{CONFIGS}tasks.toml")).unwrap();
     let lift = "[lift]\nduration_s = 8.0\n";
     assert!(tasks.contains(lift), "tasks.toml's lift duration moved");
     let short = tasks.replacen(lift, "[lift]\nduration_s = 2.0\n", 1);
@@ -126,9 +133,7 @@ fn dagger_learns_while_the_expert_leads() {
 /// (against 87 % without noise), too few to order.
 #[test]
 fn dagger_with_dart_noise_learns_while_the_expert_leads() {
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/");
-    let shipped = TrainConfig::load(format!("{root}train/lift_warm.toml")).unwrap();
-    let noise = shipped.warm_start.unwrap().action_noise_std;
+    let noise = shipped_lift_warm().warm_start.unwrap().action_noise_std;
     assert!(noise > 0.0, "lift_warm.toml no longer uses DART noise");
     let rounds = first_dagger_rounds(noise);
     assert!(
