@@ -438,7 +438,7 @@ async fn trial_run(
     let start_file = dir.join("start.json");
     let _ = std::fs::remove_file(&start_file);
     let payload_text = match payload {
-        PayloadArg::Shipped(kind) => kind.name().to_owned(),
+        PayloadArg::Named(_) => payload.name(),
         PayloadArg::File(path) => path.display().to_string(),
     };
     let mut world_cmd = Command::new(&launch.exe);
