@@ -34,8 +34,8 @@ pub struct EvalArgs {
     /// Folder holding lift.safetensors, transport.safetensors and place.safetensors.
     #[arg(long, default_value = "assets/policies")]
     policies: PathBuf,
-    /// Payloads to evaluate (box, bricks, sledge, or payload URDF paths, which name their
-    /// outputs by file stem), comma-separated.
+    /// Payloads to evaluate (box, bricks, sledge, gen<i> of the generated training family, or
+    /// payload URDF paths, which name their outputs by file stem), comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "box,bricks,sledge")]
     payload: Vec<PayloadArg>,
     /// Cases to run (lift-0.3, lift-0.5, lift-0.75, transport, place), comma-separated; only

@@ -50,7 +50,7 @@ const SETTLE_S: f64 = 1.5;
 
 #[derive(Debug, clap::Args)]
 pub struct WorldArgs {
-    /// box, bricks, sledge, or a payload URDF.
+    /// box, bricks, sledge, gen<i> (generated), or a payload URDF.
     #[arg(long, value_name = "PAYLOAD")]
     pub payload: PayloadArg,
     /// Seed of the world's draws (terrain, friction, initial joints, command and encoder noise).
