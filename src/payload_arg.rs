@@ -41,8 +41,7 @@ impl PayloadArg {
     /// for reading back outputs without building a scene.
     pub fn name(&self) -> String {
         match self {
-            PayloadArg::Named(PayloadKind::Generated(i)) => format!("gen{i}"),
-            PayloadArg::Named(kind) => kind.name().into(),
+            PayloadArg::Named(kind) => kind.label(),
             PayloadArg::File(path) => path.file_stem().map_or_else(
                 || PayloadKind::Custom.name().into(),
                 |s| s.to_string_lossy().into_owned(),

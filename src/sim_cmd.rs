@@ -23,8 +23,9 @@ pub enum SimCommand {
     /// write DIR/demo.csv (one row per control step) and DIR/demo.png (payload height, top,
     /// and tilt, bottom, over time; grid every 5 s, 0.1 m and 1 degree).
     Demo {
-        /// Payload: box, bricks, sledge, gen<i> (generated), or a payload URDF (a path ending in .urdf or
-        /// containing /; one link `payload` with one <box> collision, long side along x).
+        /// Payload: box, bricks, sledge, gen<i> (generated), or a payload URDF (a path ending
+        /// in .urdf or containing /; one link `payload` with one <box> collision, long side
+        /// along x).
         #[arg(long)]
         payload: PayloadArg,
         /// Seed of the env's random stream.

@@ -58,6 +58,17 @@ impl PayloadKind {
     }
 }
 
+impl PayloadKind {
+    /// The name a shipped or generated payload is given on the command line and in reports
+    /// (`gen<i>` for a generated one), what [`std::str::FromStr`] parses back.
+    pub fn label(self) -> String {
+        match self {
+            PayloadKind::Generated(i) => format!("gen{i}"),
+            other => other.name().into(),
+        }
+    }
+}
+
 /// Parses a shipped payload's name or a generated payload's (`gen<i>`, which a scene then
 /// checks it has); `custom` names no file.
 impl std::str::FromStr for PayloadKind {

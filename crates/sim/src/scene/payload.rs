@@ -174,13 +174,12 @@ impl SceneModel {
     /// `crate_small.urdf`).
     pub fn payload_name(&self, kind: PayloadKind) -> String {
         match (kind, self.payloads.get(&kind)) {
-            (PayloadKind::Generated(i), _) => format!("gen{i}"),
             (PayloadKind::Custom, Some(p)) => p
                 .model
                 .path
                 .file_stem()
-                .map_or_else(|| kind.name().into(), |s| s.to_string_lossy().into_owned()),
-            _ => kind.name().into(),
+                .map_or_else(|| kind.label(), |s| s.to_string_lossy().into_owned()),
+            _ => kind.label(),
         }
     }
 }
